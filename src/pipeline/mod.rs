@@ -96,3 +96,46 @@ impl Observer for Quiet {
     fn progress(&self, _: &Progress) {}
     fn preview(&self, _: &str, _: &Image) {}
 }
+
+/// Decoded inputs of one run (see [`crate::imageio`] for decoding with limits).
+pub struct Inputs {
+    pub image: image::DynamicImage,
+    /// An albedo map (same aspect ratio as the image), e.g. from an intrinsic-decomposition network.
+    pub albedo: Option<image::DynamicImage>,
+    pub masks: Masks,
+}
+
+/// Segmentation masks supplied by the client, e.g. from SAM.
+pub enum Masks {
+    /// None given: covec segments the albedo map itself.
+    None,
+    /// Binary masks (0 / 255), one per segment; may overlap and need not cover the image.
+    Binary(Vec<image::GrayImage>),
+    /// One label map: each distinct value is a segment.
+    Labels(image::DynamicImage),
+}
+
+/// What a run produces.
+pub struct Output {
+    pub scene: Scene,
+    /// The mode actually run (`auto` resolved).
+    pub mode: Mode,
+}
+
+/// Why a run stopped without a scene.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("invalid input: {0}")]
+    Input(String),
+    #[error("invalid parameters: {0}")]
+    Params(String),
+    #[error("canceled")]
+    Canceled,
+}
+
+/// Runs the whole pipeline. CPU-bound: call it from a worker thread (it uses the current rayon
+/// pool inside), never from an async task.
+pub fn run(inputs: &Inputs, params: &Params, observer: &dyn Observer, cancel: &AtomicBool) -> Result<Output, Error> {
+    let _ = (inputs, params, observer, cancel);
+    todo!("pipeline::run: initialisation lands with issue 3, optimisation with issue 4")
+}
