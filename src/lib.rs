@@ -4,6 +4,7 @@
 //! editor. The [`pipeline`] turns an image into a scene in named stages; [`service`] serves it
 //! over HTTP.
 
+pub mod geom;
 pub mod imageio;
 pub mod pipeline;
 pub mod render;
