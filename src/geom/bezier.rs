@@ -54,13 +54,19 @@ pub fn lines_for_tolerance(c: &[Point; 4], tolerance: f32) -> u32 {
     }
 }
 
-/// Appends the flattened vertices `B(k/n)` for `k = 0..n` (the end point `B(1)` is left out: in
-/// a closed path it is the next segment's start).
+/// The parameter `t_k = k/n` of the `k`-th flattened vertex, computed the one way every user
+/// (flattening and gradient chaining) must agree on.
+#[inline]
+pub fn parameter(k: u32, n: u32) -> f32 {
+    k as f32 / n as f32
+}
+
+/// Appends the flattened vertices `B(t_k)` for `k = 0..n` (the end point `B(1)` is left out: in
+/// a closed path it is the next segment's start). `B(0)` is the start point itself.
 pub fn flatten_into(c: &[Point; 4], n: u32, out: &mut Vec<Point>) {
-    let inv = 1.0 / n as f32;
     out.push(c[0]);
     for k in 1..n {
-        out.push(eval(c, k as f32 * inv));
+        out.push(eval(c, parameter(k, n)));
     }
 }
 

@@ -5,6 +5,7 @@ use std::ops::Range;
 
 use crate::geom::bezier;
 use crate::render::Flattening;
+use crate::render::real::Real;
 use crate::scene::{Path, Point};
 
 /// Flattened coordinates are clamped to ±this many pixels so that no later difference can
@@ -24,14 +25,13 @@ pub(crate) struct FlatPath {
 
 /// All paths of one render, flattened; kept in the rasteriser and refilled each call.
 #[derive(Debug, Default)]
-pub(crate) struct FlatScene {
-    pub verts: Vec<[f32; 2]>,
+pub(crate) struct FlatScene<T> {
+    pub verts: Vec<[T; 2]>,
     pub lines_per_segment: Vec<u32>,
     pub paths: Vec<FlatPath>,
-    scratch: Vec<Point>,
 }
 
-impl FlatScene {
+impl<T: Real> FlatScene<T> {
     pub fn build(&mut self, paths: &[Path], flattening: Flattening) {
         self.verts.clear();
         self.lines_per_segment.clear();
@@ -47,14 +47,10 @@ impl FlatScene {
                         Flattening::Fixed(n) => n.clamp(1, bezier::MAX_LINES_PER_CUBIC),
                     };
                     self.lines_per_segment.push(n);
-                    self.scratch.clear();
-                    bezier::flatten_into(&c, n, &mut self.scratch);
-                    self.verts.extend(self.scratch.iter().map(|p| {
-                        [
-                            p.x.clamp(-COORD_LIMIT, COORD_LIMIT),
-                            p.y.clamp(-COORD_LIMIT, COORD_LIMIT),
-                        ]
-                    }));
+                    let limit = T::from_f32(COORD_LIMIT);
+                    self.verts.extend(
+                        (0..n).map(|k| T::bezier_point(&c, k, n).map(|v| v.max(-limit).min(limit))),
+                    );
                 }
             }
             let verts = vert_start..self.verts.len();
@@ -65,11 +61,13 @@ impl FlatScene {
                 f32::NEG_INFINITY,
             ];
             for v in &self.verts[verts.clone()] {
+                // Whole pixels, rounded outwards, so the f32 box contains the polyline.
+                let (x, y) = (v[0].floor().to_i32() as f32, v[1].floor().to_i32() as f32);
                 bbox = [
-                    bbox[0].min(v[0]),
-                    bbox[1].min(v[1]),
-                    bbox[2].max(v[0]),
-                    bbox[3].max(v[1]),
+                    bbox[0].min(x),
+                    bbox[1].min(y),
+                    bbox[2].max(x + 1.0),
+                    bbox[3].max(y + 1.0),
                 ];
             }
             self.paths.push(FlatPath {
@@ -79,7 +77,9 @@ impl FlatScene {
             });
         }
     }
+}
 
+impl FlatScene<f32> {
     /// Adds `vertex_grads` (dL/d flattened vertex of `path`, in vertex order) into
     /// `point_grads` (dL/d control point) using the Bernstein weights of each vertex's parameter.
     pub fn chain_to_control_points(
@@ -96,7 +96,6 @@ impl FlatScene {
             .enumerate()
         {
             let idx = [3 * s, 3 * s + 1, 3 * s + 2, (3 * s + 3) % count];
-            let inv = 1.0 / n as f32;
             for k in 0..n {
                 let g = vertex_grads[v];
                 v += 1;
@@ -106,7 +105,7 @@ impl FlatScene {
                     point_grads[idx[0]].y += g[1] as f32;
                     continue;
                 }
-                let w = bezier::bernstein(k as f32 * inv);
+                let w = bezier::bernstein(bezier::parameter(k, n));
                 for (j, &i) in idx.iter().enumerate() {
                     point_grads[i].x += (w[j] as f64 * g[0]) as f32;
                     point_grads[i].y += (w[j] as f64 * g[1]) as f32;

@@ -30,6 +30,7 @@
 pub mod composite;
 mod flatten;
 mod raster;
+mod real;
 
 use std::sync::Mutex;
 
@@ -39,6 +40,7 @@ use crate::geom::bezier::FLATTEN_TOLERANCE;
 use crate::scene::{Path, Point};
 use flatten::FlatScene;
 use raster::RowSpan;
+use real::Real;
 
 /// `|acc|` up to which coverage counts as unsaturated in the backward. Above 1 the forward's
 /// `min(1, |acc|)` is flat; at exactly 1 (a pixel just fully covered, common with pixel-aligned
@@ -156,9 +158,7 @@ pub fn check_path(path: &Path) -> Result<(), PathError> {
 /// Per-thread working memory, reused across strips and calls.
 #[derive(Default)]
 struct Scratch {
-    /// Signed-area deltas of one path over the strip, row stride `width + 2`.
-    delta: Vec<f32>,
-    spans: Vec<RowSpan>,
+    coverage: StripCoverage<f32>,
     /// Backward: the paths meeting the strip, their per-row spans and signed areas (later
     /// overwritten by dL/d area).
     active: Vec<u32>,
@@ -190,7 +190,7 @@ struct PathPartial {
 #[derive(Default)]
 pub struct Rasterizer {
     flattening: Flattening,
-    flat: FlatScene,
+    flat: FlatScene<f32>,
     pool: Mutex<Vec<Scratch>>,
     strips: Vec<StripGrads>,
     vert_grads: Vec<[f64; 2]>,
@@ -234,9 +234,43 @@ impl Rasterizer {
             .enumerate()
             .for_each(|(s, pixels)| {
                 let mut scratch = take(pool);
-                render_strip(flat, paths, base, width, height, s, pixels, &mut scratch);
+                render_strip(
+                    flat,
+                    paths,
+                    base,
+                    width,
+                    height,
+                    s,
+                    pixels,
+                    &mut scratch.coverage,
+                );
                 give(pool, scratch);
             });
+    }
+
+    /// The same forward as [`render`](Self::render) evaluated entirely in f64 (flattening,
+    /// coverage and compositing): the reference for finite-difference checks of the gradients,
+    /// where f32 rounding of the forward would swamp small steps. Returns the
+    /// interleaved RGB values. Slower and allocating; not for the optimisation loop.
+    pub fn render_f64(
+        &self,
+        paths: &[Path],
+        base: [f32; 3],
+        width: usize,
+        height: usize,
+    ) -> Vec<f64> {
+        let mut out = vec![0.0f64; width * height * 3];
+        if width == 0 || height == 0 {
+            return out;
+        }
+        let mut flat = FlatScene::<f64>::default();
+        flat.build(paths, self.flattening);
+        out.par_chunks_mut(STRIP_ROWS * width * 3)
+            .enumerate()
+            .for_each_init(StripCoverage::<f64>::default, |coverage, (s, pixels)| {
+                render_strip(&flat, paths, base, width, height, s, pixels, coverage)
+            });
+        out
     }
 
     /// Adds dLoss/dparams of the render of `paths` over `base` into `grads`, given
@@ -342,31 +376,43 @@ fn meets_strip(bbox: [f32; 4], row0: usize, rows: usize, width: usize) -> bool {
         && bbox[0] < width as f32
 }
 
-fn prepare_delta(scratch: &mut Scratch, width: usize) {
-    let len = STRIP_ROWS * (width + 2);
-    if scratch.delta.len() != len {
-        scratch.delta.clear();
-        scratch.delta.resize(len, 0.0);
+/// One path's signed-area deltas over a strip (row stride `width + 2`) and its row spans.
+#[derive(Default)]
+struct StripCoverage<T> {
+    delta: Vec<T>,
+    spans: Vec<RowSpan>,
+}
+
+impl<T: Real> StripCoverage<T> {
+    /// Sizes the buffers for a canvas `width` wide; `delta` is all zero afterwards (every user
+    /// clears what it touched).
+    fn prepare(&mut self, width: usize) {
+        let len = STRIP_ROWS * (width + 2);
+        if self.delta.len() != len {
+            self.delta.clear();
+            self.delta.resize(len, T::ZERO);
+        }
+        self.spans.resize(STRIP_ROWS, RowSpan::EMPTY);
     }
-    scratch.spans.resize(STRIP_ROWS, RowSpan::EMPTY);
 }
 
 #[allow(clippy::too_many_arguments)]
-fn render_strip(
-    flat: &FlatScene,
+fn render_strip<T: Real>(
+    flat: &FlatScene<T>,
     paths: &[Path],
     base: [f32; 3],
     width: usize,
     height: usize,
     s: usize,
-    pixels: &mut [f32],
-    scratch: &mut Scratch,
+    pixels: &mut [T],
+    scratch: &mut StripCoverage<T>,
 ) {
     let (row0, rows) = strip_rows(s, height);
+    let base = base.map(T::from_f32);
     for px in pixels.chunks_exact_mut(3) {
         px.copy_from_slice(&base);
     }
-    prepare_delta(scratch, width);
+    scratch.prepare(width);
     let stride = width + 2;
     for (path, fp) in paths.iter().zip(&flat.paths) {
         if fp.verts.is_empty() || path.opacity <= 0.0 || !meets_strip(fp.bbox, row0, rows, width) {
@@ -381,7 +427,7 @@ fn render_strip(
             &mut scratch.delta,
             &mut scratch.spans,
         );
-        let (op, c) = (path.opacity, path.color);
+        let (op, c) = (T::from_f32(path.opacity), path.color.map(T::from_f32));
         for r in 0..rows {
             let span = scratch.spans[r];
             if span.len() == 0 {
@@ -393,7 +439,7 @@ fn render_strip(
                 span,
                 width,
                 |x, acc| {
-                    let a = acc.abs().min(1.0) * op;
+                    let a = acc.abs().min(T::ONE) * op;
                     let p = &mut out[3 * x..3 * x + 3];
                     p[0] += a * (c[0] - p[0]);
                     p[1] += a * (c[1] - p[1]);
@@ -405,7 +451,7 @@ fn render_strip(
 }
 
 fn backward_strip(
-    flat: &FlatScene,
+    flat: &FlatScene<f32>,
     paths: &[Path],
     base: [f32; 3],
     d_out: &Image,
@@ -416,7 +462,7 @@ fn backward_strip(
     let (width, height) = (d_out.width, d_out.height);
     let (row0, rows) = strip_rows(s, height);
     let stride = width + 2;
-    prepare_delta(scratch, width);
+    scratch.coverage.prepare(width);
     strip.paths.clear();
     strip.verts.clear();
 
@@ -431,22 +477,23 @@ fn backward_strip(
         }
         scratch.active.push(i as u32);
         let verts = &flat.verts[fp.verts.clone()];
+        let cov = &mut scratch.coverage;
         raster::accumulate(
             verts,
             row0 as i32,
             rows,
             width,
-            &mut scratch.delta,
-            &mut scratch.spans,
+            &mut cov.delta,
+            &mut cov.spans,
         );
         for r in 0..rows {
-            let span = scratch.spans[r];
+            let span = cov.spans[r];
             scratch.active_spans.push(span);
             scratch.area_offsets.push(scratch.area.len() as u32);
             if span.len() > 0 {
                 let area = &mut scratch.area;
                 raster::prefix_row(
-                    &mut scratch.delta[r * stride..(r + 1) * stride],
+                    &mut cov.delta[r * stride..(r + 1) * stride],
                     span,
                     width,
                     |_, acc| area.push(acc),

@@ -12,6 +12,8 @@
 //! `dL/dP1 = (−y′, x′)·Σ g(cell)∫t dt` with `(x′, y′) = P1 − P0`: only the cells the edge passes
 //! through matter, so the backward costs O(perimeter).
 
+use super::real::Real;
+
 /// One row of the path's coverage inside a strip: cells `lo..end` hold its signed area; outside
 /// that range the path's coverage is zero.
 #[derive(Clone, Copy, Debug, Default)]
@@ -36,35 +38,35 @@ impl RowSpan {
 /// Horizontal lines yield nothing unless `HORIZONTAL` (the forward ignores them: they enclose no
 /// area, but moving them vertically does change the area, which the backward needs).
 #[inline(always)]
-pub(crate) fn walk_line<const HORIZONTAL: bool>(
-    p0: [f32; 2],
-    p1: [f32; 2],
+pub(crate) fn walk_line<T: Real, const HORIZONTAL: bool>(
+    p0: [T; 2],
+    p1: [T; 2],
     row_lo: i32,
     row_hi: i32,
     width: i32,
-    mut piece: impl FnMut(i32, i32, f32, f32, f32, f32),
+    mut piece: impl FnMut(i32, i32, T, T, T, T),
 ) {
     let ([xt, yt], [xb, yb]) = if p0[1] <= p1[1] { (p0, p1) } else { (p1, p0) };
     if yt == yb {
         if HORIZONTAL {
             let row = yt.floor();
-            if row >= row_lo as f32 && row < row_hi as f32 {
-                split_row(p0[0], yt, p1[0], yb, row as i32, width, &mut piece);
+            if row >= T::from_i32(row_lo) && row < T::from_i32(row_hi) {
+                split_row(p0[0], yt, p1[0], yb, row.to_i32(), width, &mut piece);
             }
         }
         return;
     }
-    let ys = yt.max(row_lo as f32);
-    let ye = yb.min(row_hi as f32);
+    let ys = yt.max(T::from_i32(row_lo));
+    let ye = yb.min(T::from_i32(row_hi));
     if ys >= ye {
         return;
     }
     let slope = (xb - xt) / (yb - yt);
-    let mut row = ys.floor() as i32;
+    let mut row = ys.floor().to_i32();
     let mut y = ys;
     let mut x = if ys == yt { xt } else { xt + (ys - yt) * slope };
     loop {
-        let row_end = (row + 1) as f32;
+        let row_end = T::from_i32(row + 1);
         let (nx, ny) = if ye <= row_end {
             (if ye == yb { xb } else { xt + (ye - yt) * slope }, ye)
         } else {
@@ -82,29 +84,29 @@ pub(crate) fn walk_line<const HORIZONTAL: bool>(
 
 /// Splits a line part lying within one row at the integer columns `0..=width` it crosses.
 #[inline(always)]
-fn split_row(
-    xa: f32,
-    ya: f32,
-    xb: f32,
-    yb: f32,
+fn split_row<T: Real>(
+    xa: T,
+    ya: T,
+    xb: T,
+    yb: T,
     row: i32,
     width: i32,
-    piece: &mut impl FnMut(i32, i32, f32, f32, f32, f32),
+    piece: &mut impl FnMut(i32, i32, T, T, T, T),
 ) {
     let (lo, hi) = if xa <= xb { (xa, xb) } else { (xb, xa) };
-    let first = (lo.floor() + 1.0).max(0.0);
-    let last = (hi.ceil() - 1.0).min(width as f32);
+    let first = (lo.floor() + T::ONE).max(T::ZERO);
+    let last = (hi.ceil() - T::ONE).min(T::from_i32(width));
     if first > last {
-        piece(cell(0.5 * (xa + xb)), row, xa, ya, xb, yb);
+        piece(cell(T::HALF * (xa + xb)), row, xa, ya, xb, yb);
         return;
     }
     let dydx = (yb - ya) / (xb - xa);
     let (mut px, mut py) = (xa, ya);
-    let (first, last) = (first as i32, last as i32);
+    let (first, last) = (first.to_i32(), last.to_i32());
     let mut emit = |bx: i32| {
-        let x = bx as f32;
+        let x = T::from_i32(bx);
         let y = ya + (x - xa) * dydx;
-        piece(cell(0.5 * (px + x)), row, px, py, x, y);
+        piece(cell(T::HALF * (px + x)), row, px, py, x, y);
         px = x;
         py = y;
     };
@@ -117,25 +119,25 @@ fn split_row(
             emit(bx);
         }
     }
-    piece(cell(0.5 * (px + xb)), row, px, py, xb, yb);
+    piece(cell(T::HALF * (px + xb)), row, px, py, xb, yb);
 }
 
 #[inline(always)]
-fn cell(x: f32) -> i32 {
+fn cell<T: Real>(x: T) -> i32 {
     // Saturating cast: far-away pieces just land left or right of the canvas.
-    x.floor() as i32
+    x.floor().to_i32()
 }
 
 /// Accumulates the signed-area deltas of one closed polyline into `delta` (rows
 /// `row0..row0 + rows` of a canvas `width` wide, row stride `width + 2`) and records, per row,
 /// the span of cells whose coverage may be non-zero. `delta` must be zero on entry over the
 /// touched rows; [`prefix_row`] restores that.
-pub(crate) fn accumulate(
-    verts: &[[f32; 2]],
+pub(crate) fn accumulate<T: Real>(
+    verts: &[[T; 2]],
     row0: i32,
     rows: usize,
     width: usize,
-    delta: &mut [f32],
+    delta: &mut [T],
     spans: &mut [RowSpan],
 ) {
     let stride = width + 2;
@@ -144,7 +146,7 @@ pub(crate) fn accumulate(
     let mut lo = [i32::MAX; crate::render::STRIP_ROWS];
     let mut hi = [i32::MIN; crate::render::STRIP_ROWS];
     let row_hi = row0 + rows as i32;
-    let (y_lo, y_hi) = (row0 as f32, row_hi as f32);
+    let (y_lo, y_hi) = (T::from_i32(row0), T::from_i32(row_hi));
     let n = verts.len();
     for j in 0..n {
         let a = verts[j];
@@ -152,8 +154,8 @@ pub(crate) fn accumulate(
         if (a[1] <= y_lo && b[1] <= y_lo) || (a[1] >= y_hi && b[1] >= y_hi) {
             continue;
         }
-        let sign = if a[1] <= b[1] { 1.0 } else { -1.0 };
-        walk_line::<false>(a, b, row0, row_hi, w, |cx, cy, xa, ya, xb, yb| {
+        let sign = if a[1] <= b[1] { T::ONE } else { -T::ONE };
+        walk_line::<T, false>(a, b, row0, row_hi, w, |cx, cy, xa, ya, xb, yb| {
             let r = (cy - row0) as usize;
             let dy = (yb - ya) * sign;
             let row = &mut delta[r * stride..(r + 1) * stride];
@@ -163,9 +165,9 @@ pub(crate) fn accumulate(
             } else if cx >= w {
                 w - 1
             } else {
-                let m = 0.5 * (xa + xb) - cx as f32;
+                let m = T::HALF * (xa + xb) - T::from_i32(cx);
                 let c = cx as usize;
-                row[c] += dy * (1.0 - m);
+                row[c] += dy * (T::ONE - m);
                 row[c + 1] += dy * m;
                 cx
             };
@@ -188,21 +190,21 @@ pub(crate) fn accumulate(
 /// Calls `f(x, acc)` for every cell of `span` with the running signed area, and clears the row's
 /// deltas (including the one past the canvas edge) for the next path.
 #[inline(always)]
-pub(crate) fn prefix_row(
-    delta_row: &mut [f32],
+pub(crate) fn prefix_row<T: Real>(
+    delta_row: &mut [T],
     span: RowSpan,
     width: usize,
-    mut f: impl FnMut(usize, f32),
+    mut f: impl FnMut(usize, T),
 ) {
-    let mut acc = 0.0f32;
+    let mut acc = T::ZERO;
     let (lo, end) = (span.lo as usize, span.end as usize);
     for (i, d) in delta_row[lo..end].iter_mut().enumerate() {
         acc += *d;
-        *d = 0.0;
+        *d = T::ZERO;
         f(lo + i, acc);
     }
     if end == width {
-        delta_row[width] = 0.0;
+        delta_row[width] = T::ZERO;
     }
 }
 
@@ -238,7 +240,7 @@ pub(crate) fn backward_lines(
             continue;
         }
         let (mut s0, mut s1) = (0.0f32, 0.0f32);
-        walk_line::<true>(a, b, row0, row_hi, w, |cx, cy, xa, ya, xb, yb| {
+        walk_line::<f32, true>(a, b, row0, row_hi, w, |cx, cy, xa, ya, xb, yb| {
             let gv = g(cx, cy);
             if gv == 0.0 {
                 return;
