@@ -43,7 +43,9 @@ impl<T: Real> FlatScene<T> {
                 for k in 0..path.segment_count() {
                     let c = path.segment(k);
                     let n = match flattening {
-                        Flattening::Tolerance(tol) => bezier::lines_for_tolerance(&c, tol),
+                        Flattening::Tolerance(tol) => {
+                            bezier::lines_for_tolerance(&c, tol).max(super::MIN_LINES_PER_CUBIC)
+                        }
                         Flattening::Fixed(n) => n.clamp(1, bezier::MAX_LINES_PER_CUBIC),
                     };
                     self.lines_per_segment.push(n);
