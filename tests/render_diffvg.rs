@@ -148,9 +148,9 @@ fn loss_and_grads(paths: &[Path]) -> (f64, Vec<PathGrad>) {
     for y in 0..h {
         for x in 0..w {
             let t = [(x as f64 + 0.5) / 64.0, (y as f64 + 0.5) / 64.0, 0.5];
-            for c in 0..3 {
+            for (c, t) in t.into_iter().enumerate() {
                 let i = 3 * (y * w + x) + c;
-                let d = image.data[i] as f64 - t[c];
+                let d = image.data[i] as f64 - t;
                 loss += d * d / n;
                 d_out.data[i] = (2.0 * d / n) as f32;
             }

@@ -178,3 +178,46 @@ fn product_composite_gradients_match_finite_differences() {
         weighted_sq_loss_f64(&v, &target, &weights)
     });
 }
+
+#[test]
+fn deep_overlap_gradients_match_finite_differences() {
+    // 600 canvas-wide paths: deep enough that the backward splits each 16-row band into
+    // several passes; check a few paths at the bottom, middle and top of the stack.
+    let size = 48;
+    let mut rng = SplitMix64(9);
+    let mut paths: Vec<Path> = (0..600)
+        .map(|_| {
+            let pts = scribble(
+                &mut rng,
+                -5.0,
+                -5.0,
+                size as f32 + 5.0,
+                size as f32 + 5.0,
+                4,
+            );
+            paint(&mut rng, pts)
+        })
+        .collect();
+    for p in &mut paths {
+        p.opacity *= 0.2;
+    }
+    let base = [1.0, 1.0, 1.0];
+    let (target, weights) = target_and_weights(&mut rng, size * size * 3);
+    let mut raster = Rasterizer::with_flattening(Flattening::Fixed(4));
+    let image = render(&mut raster, &paths, base, size);
+    let (_, d_out) = weighted_sq_loss(&image, &target, &weights);
+    let mut grads = zero_grads(&paths);
+    raster.backward(&paths, base, &d_out, &mut grads);
+
+    let picked = [0usize, 300, 599];
+    let mut layers = [picked.iter().map(|&i| paths[i].clone()).collect::<Vec<_>>()];
+    let picked_grads = [picked.iter().map(|&i| grads[i].clone()).collect::<Vec<_>>()];
+    check_all(&mut layers, &picked_grads, |layers| {
+        let mut scene = paths.clone();
+        for (k, &i) in picked.iter().enumerate() {
+            scene[i] = layers[0][k].clone();
+        }
+        let image = raster.render_f64(&scene, base, size, size);
+        weighted_sq_loss_f64(&image, &target, &weights)
+    });
+}

@@ -64,7 +64,7 @@ impl<T: Real> FlatScene<T> {
             ];
             for v in &self.verts[verts.clone()] {
                 // Whole pixels, rounded outwards, so the f32 box contains the polyline.
-                let (x, y) = (v[0].floor().to_i32() as f32, v[1].floor().to_i32() as f32);
+                let (x, y) = (v[0].floor_i32() as f32, v[1].floor_i32() as f32);
                 bbox = [
                     bbox[0].min(x),
                     bbox[1].min(y),

@@ -27,6 +27,7 @@
 //! pool); every strip produces its own partial gradients, reduced in strip order, so results do
 //! not depend on the thread count. Per-thread buffers live in the [`Rasterizer`] and are reused.
 
+mod backward;
 pub mod composite;
 mod flatten;
 mod raster;
@@ -41,12 +42,6 @@ use crate::scene::{Path, Point};
 use flatten::FlatScene;
 use raster::RowSpan;
 use real::Real;
-
-/// `|acc|` up to which coverage counts as unsaturated in the backward. Above 1 the forward's
-/// `min(1, |acc|)` is flat; at exactly 1 (a pixel just fully covered, common with pixel-aligned
-/// shapes) the backward takes the one-sided derivative towards less coverage, and the small
-/// slack keeps prefix-sum rounding (`|acc| = 1 + ulp`) from zeroing it.
-const SATURATION: f32 = 1.0 + 1e-5;
 
 /// Rows per strip: the unit of parallel work and of the backward's per-pixel bookkeeping.
 pub const STRIP_ROWS: usize = 16;
@@ -151,7 +146,7 @@ pub enum PathError {
 
 /// Checks that `path` is drawable: a positive multiple of 3 points, all finite, finite paint.
 pub fn check_path(path: &Path) -> Result<(), PathError> {
-    if path.points.is_empty() || path.points.len() % 3 != 0 {
+    if path.points.is_empty() || !path.points.len().is_multiple_of(3) {
         return Err(PathError::PointCount(path.points.len()));
     }
     if let Some(i) = path
@@ -171,31 +166,7 @@ pub fn check_path(path: &Path) -> Result<(), PathError> {
 #[derive(Default)]
 struct Scratch {
     coverage: StripCoverage<f32>,
-    /// Backward: the paths meeting the strip, their per-row spans and signed areas (later
-    /// overwritten by dL/d area).
-    active: Vec<u32>,
-    active_spans: Vec<RowSpan>,
-    area_offsets: Vec<u32>,
-    area: Vec<f32>,
-    /// Backward, one row at a time: the composite below each path, the running composite and
-    /// the running dL/d composite.
-    below: Vec<f32>,
-    row_color: Vec<f32>,
-    row_grad: Vec<f32>,
-}
-
-/// Partial gradients of one strip, in the order of its active paths.
-#[derive(Default)]
-struct StripGrads {
-    paths: Vec<PathPartial>,
-    /// dL/d flattened vertex for the active paths' vertices, concatenated.
-    verts: Vec<[f32; 2]>,
-}
-
-struct PathPartial {
-    path: u32,
-    color: [f64; 3],
-    opacity: f64,
+    backward: backward::Workspace,
 }
 
 /// Reusable rasteriser: keeps its buffers between calls so optimisation loops don't allocate.
@@ -204,8 +175,8 @@ pub struct Rasterizer {
     flattening: Flattening,
     flat: FlatScene<f32>,
     pool: Mutex<Vec<Scratch>>,
-    strips: Vec<StripGrads>,
-    vert_grads: Vec<[f64; 2]>,
+    bands: Vec<backward::BandGrads>,
+    totals: backward::Totals,
 }
 
 impl Rasterizer {
@@ -309,54 +280,33 @@ impl Rasterizer {
             return;
         }
         self.flat.build(paths, self.flattening);
-        let strip_count = height.div_ceil(STRIP_ROWS);
-        if self.strips.len() < strip_count {
-            self.strips.resize_with(strip_count, StripGrads::default);
+        let band_count = height.div_ceil(STRIP_ROWS);
+        if self.bands.len() < band_count {
+            self.bands.resize_with(band_count, Default::default);
         }
+        let rows_per_pass = backward::rows_per_pass(&self.flat, width, height);
         let flat = &self.flat;
         let pool = &self.pool;
-        self.strips[..strip_count]
+        self.bands[..band_count]
             .par_iter_mut()
             .enumerate()
-            .for_each(|(s, strip)| {
+            .for_each(|(band, grads)| {
                 let mut scratch = take(pool);
-                backward_strip(flat, paths, base, d_out, s, strip, &mut scratch);
+                let job = backward::Band {
+                    flat,
+                    paths,
+                    base,
+                    d_out,
+                    band,
+                    rows_per_pass,
+                };
+                job.run(grads, &mut scratch.backward, &mut scratch.coverage);
                 give(pool, scratch);
             });
-
-        // Reduce in strip order (deterministic), then chain to the control points.
-        self.vert_grads.clear();
-        self.vert_grads.resize(flat.verts.len(), [0.0; 2]);
-        let mut paint = vec![([0.0f64; 3], 0.0f64); paths.len()];
-        for strip in &self.strips[..strip_count] {
-            let mut v = 0;
-            for partial in &strip.paths {
-                let i = partial.path as usize;
-                for c in 0..3 {
-                    paint[i].0[c] += partial.color[c];
-                }
-                paint[i].1 += partial.opacity;
-                let range = flat.paths[i].verts.clone();
-                for (acc, g) in self.vert_grads[range.clone()]
-                    .iter_mut()
-                    .zip(&strip.verts[v..v + range.len()])
-                {
-                    acc[0] += g[0] as f64;
-                    acc[1] += g[1] as f64;
-                }
-                v += range.len();
-            }
-        }
-        for (i, grad) in grads.iter_mut().enumerate().take(paths.len()) {
-            for c in 0..3 {
-                grad.color[c] += paint[i].0[c] as f32;
-            }
-            grad.opacity += paint[i].1 as f32;
-            let range = flat.paths[i].verts.clone();
-            if !range.is_empty() {
-                flat.chain_to_control_points(i, &self.vert_grads[range], &mut grad.points);
-            }
-        }
+        // Reduce in band order (deterministic), then chain to the control points.
+        self.totals
+            .reduce(flat, &self.bands[..band_count], paths.len());
+        self.totals.add_into(flat, grads);
     }
 }
 
@@ -459,166 +409,5 @@ fn render_strip<T: Real>(
                 },
             );
         }
-    }
-}
-
-fn backward_strip(
-    flat: &FlatScene<f32>,
-    paths: &[Path],
-    base: [f32; 3],
-    d_out: &Image,
-    s: usize,
-    strip: &mut StripGrads,
-    scratch: &mut Scratch,
-) {
-    let (width, height) = (d_out.width, d_out.height);
-    let (row0, rows) = strip_rows(s, height);
-    let stride = width + 2;
-    scratch.coverage.prepare(width);
-    strip.paths.clear();
-    strip.verts.clear();
-
-    // 1. Signed areas of every path meeting the strip, kept per row span.
-    scratch.active.clear();
-    scratch.active_spans.clear();
-    scratch.area_offsets.clear();
-    scratch.area.clear();
-    for (i, fp) in flat.paths.iter().enumerate() {
-        if fp.verts.is_empty() || !meets_strip(fp.bbox, row0, rows, width) {
-            continue;
-        }
-        scratch.active.push(i as u32);
-        let verts = &flat.verts[fp.verts.clone()];
-        let cov = &mut scratch.coverage;
-        raster::accumulate(
-            verts,
-            row0 as i32,
-            rows,
-            width,
-            &mut cov.delta,
-            &mut cov.spans,
-        );
-        for r in 0..rows {
-            let span = cov.spans[r];
-            scratch.active_spans.push(span);
-            scratch.area_offsets.push(scratch.area.len() as u32);
-            if span.len() > 0 {
-                let area = &mut scratch.area;
-                raster::prefix_row(
-                    &mut cov.delta[r * stride..(r + 1) * stride],
-                    span,
-                    width,
-                    |_, acc| area.push(acc),
-                );
-            }
-        }
-    }
-
-    // 2. Per row: composite forwards remembering what lies below each path, then backwards.
-    scratch.row_color.resize(width * 3, 0.0);
-    scratch.row_grad.resize(width * 3, 0.0);
-    let n_active = scratch.active.len();
-    let mut paint = vec![([0.0f64; 3], 0.0f64); n_active];
-    for r in 0..rows {
-        for px in scratch.row_color.chunks_exact_mut(3) {
-            px.copy_from_slice(&base);
-        }
-        scratch.below.clear();
-        for (k, &i) in scratch.active.iter().enumerate() {
-            let span = scratch.active_spans[k * rows + r];
-            if span.len() == 0 {
-                continue;
-            }
-            let path = &paths[i as usize];
-            let (op, c) = (path.opacity, path.color);
-            let off = scratch.area_offsets[k * rows + r] as usize;
-            let area = &scratch.area[off..off + span.len()];
-            let color = &mut scratch.row_color[3 * span.lo as usize..3 * span.end as usize];
-            for (p, &acc) in color.chunks_exact_mut(3).zip(area) {
-                scratch.below.extend_from_slice(p);
-                let a = acc.abs().min(1.0) * op;
-                p[0] += a * (c[0] - p[0]);
-                p[1] += a * (c[1] - p[1]);
-                p[2] += a * (c[2] - p[2]);
-            }
-        }
-        let y = row0 + r;
-        scratch
-            .row_grad
-            .copy_from_slice(&d_out.data[y * width * 3..(y + 1) * width * 3]);
-        let mut below_end = scratch.below.len();
-        for k in (0..n_active).rev() {
-            let span = scratch.active_spans[k * rows + r];
-            if span.len() == 0 {
-                continue;
-            }
-            let path = &paths[scratch.active[k] as usize];
-            let (op, c) = (path.opacity, path.color);
-            let off = scratch.area_offsets[k * rows + r] as usize;
-            let area = &mut scratch.area[off..off + span.len()];
-            let below = &scratch.below[below_end - 3 * span.len()..below_end];
-            below_end -= 3 * span.len();
-            let grad = &mut scratch.row_grad[3 * span.lo as usize..3 * span.end as usize];
-            let (mut dc, mut dop) = ([0.0f32; 3], 0.0f32);
-            for ((g, b), acc) in grad
-                .chunks_exact_mut(3)
-                .zip(below.chunks_exact(3))
-                .zip(area.iter_mut())
-            {
-                let cov = acc.abs().min(1.0);
-                let a = cov * op;
-                dc[0] += g[0] * a;
-                dc[1] += g[1] * a;
-                dc[2] += g[2] * a;
-                let da = g[0] * (c[0] - b[0]) + g[1] * (c[1] - b[1]) + g[2] * (c[2] - b[2]);
-                dop += da * cov;
-                *acc = if acc.abs() <= SATURATION {
-                    da * op * 1.0f32.copysign(*acc)
-                } else {
-                    0.0
-                };
-                let keep = 1.0 - a;
-                g[0] *= keep;
-                g[1] *= keep;
-                g[2] *= keep;
-            }
-            for ch in 0..3 {
-                paint[k].0[ch] += dc[ch] as f64;
-            }
-            paint[k].1 += dop as f64;
-        }
-    }
-
-    // 3. dL/d area through the edges to the flattened vertices.
-    for (k, &i) in scratch.active.iter().enumerate() {
-        let fp = &flat.paths[i as usize];
-        let start = strip.verts.len();
-        strip.verts.resize(start + fp.verts.len(), [0.0; 2]);
-        let spans = &scratch.active_spans[k * rows..(k + 1) * rows];
-        let offsets = &scratch.area_offsets[k * rows..(k + 1) * rows];
-        let area = &scratch.area;
-        let lookup = |cx: i32, cy: i32| -> f32 {
-            let r = (cy - row0 as i32) as usize;
-            let span = spans[r];
-            let x = cx as u32;
-            if cx >= 0 && x >= span.lo && x < span.end {
-                area[offsets[r] as usize + (x - span.lo) as usize]
-            } else {
-                0.0
-            }
-        };
-        raster::backward_lines(
-            &flat.verts[fp.verts.clone()],
-            row0 as i32,
-            rows,
-            width,
-            &mut strip.verts[start..],
-            lookup,
-        );
-        strip.paths.push(PathPartial {
-            path: i,
-            color: paint[k].0,
-            opacity: paint[k].1,
-        });
     }
 }

@@ -49,9 +49,9 @@ pub(crate) fn walk_line<T: Real, const HORIZONTAL: bool>(
     let ([xt, yt], [xb, yb]) = if p0[1] <= p1[1] { (p0, p1) } else { (p1, p0) };
     if yt == yb {
         if HORIZONTAL {
-            let row = yt.floor();
-            if row >= T::from_i32(row_lo) && row < T::from_i32(row_hi) {
-                split_row(p0[0], yt, p1[0], yb, row.to_i32(), width, &mut piece);
+            let row = yt.floor_i32();
+            if row >= row_lo && row < row_hi {
+                split_row(p0[0], yt, p1[0], yb, row, width, &mut piece);
             }
         }
         return;
@@ -62,7 +62,7 @@ pub(crate) fn walk_line<T: Real, const HORIZONTAL: bool>(
         return;
     }
     let slope = (xb - xt) / (yb - yt);
-    let mut row = ys.floor().to_i32();
+    let mut row = ys.floor_i32();
     let mut y = ys;
     let mut x = if ys == yt { xt } else { xt + (ys - yt) * slope };
     loop {
@@ -94,15 +94,14 @@ fn split_row<T: Real>(
     piece: &mut impl FnMut(i32, i32, T, T, T, T),
 ) {
     let (lo, hi) = if xa <= xb { (xa, xb) } else { (xb, xa) };
-    let first = (lo.floor() + T::ONE).max(T::ZERO);
-    let last = (hi.ceil() - T::ONE).min(T::from_i32(width));
+    let first = lo.floor_i32().saturating_add(1).max(0);
+    let last = hi.ceil_i32().saturating_sub(1).min(width);
     if first > last {
         piece(cell(T::HALF * (xa + xb)), row, xa, ya, xb, yb);
         return;
     }
     let dydx = (yb - ya) / (xb - xa);
     let (mut px, mut py) = (xa, ya);
-    let (first, last) = (first.to_i32(), last.to_i32());
     let mut emit = |bx: i32| {
         let x = T::from_i32(bx);
         let y = ya + (x - xa) * dydx;
@@ -124,8 +123,7 @@ fn split_row<T: Real>(
 
 #[inline(always)]
 fn cell<T: Real>(x: T) -> i32 {
-    // Saturating cast: far-away pieces just land left or right of the canvas.
-    x.floor().to_i32()
+    x.floor_i32()
 }
 
 /// Accumulates the signed-area deltas of one closed polyline into `delta` (rows

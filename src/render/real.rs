@@ -25,10 +25,11 @@ pub(crate) trait Real:
     const HALF: Self;
     fn from_f32(v: f32) -> Self;
     fn from_i32(v: i32) -> Self;
-    /// Saturating conversion of an integral value.
-    fn to_i32(self) -> i32;
-    fn floor(self) -> Self;
-    fn ceil(self) -> Self;
+    /// `floor(self)` as i32 (saturating), without a libm call: baseline x86-64 has no
+    /// rounding instruction, and `f32::floor` there is a function call in the hottest loops.
+    fn floor_i32(self) -> i32;
+    /// `ceil(self)` as i32 (saturating).
+    fn ceil_i32(self) -> i32;
     fn abs(self) -> Self;
     fn min(self, other: Self) -> Self;
     fn max(self, other: Self) -> Self;
@@ -49,16 +50,22 @@ impl Real for f32 {
         v as f32
     }
     #[inline(always)]
-    fn to_i32(self) -> i32 {
-        self as i32
+    fn floor_i32(self) -> i32 {
+        let t = self as i32;
+        if (t as f32) > self {
+            t.saturating_sub(1)
+        } else {
+            t
+        }
     }
     #[inline(always)]
-    fn floor(self) -> Self {
-        f32::floor(self)
-    }
-    #[inline(always)]
-    fn ceil(self) -> Self {
-        f32::ceil(self)
+    fn ceil_i32(self) -> i32 {
+        let t = self as i32;
+        if (t as f32) < self {
+            t.saturating_add(1)
+        } else {
+            t
+        }
     }
     #[inline(always)]
     fn abs(self) -> Self {
@@ -96,16 +103,22 @@ impl Real for f64 {
         v as f64
     }
     #[inline(always)]
-    fn to_i32(self) -> i32 {
-        self as i32
+    fn floor_i32(self) -> i32 {
+        let t = self as i32;
+        if (t as f64) > self {
+            t.saturating_sub(1)
+        } else {
+            t
+        }
     }
     #[inline(always)]
-    fn floor(self) -> Self {
-        f64::floor(self)
-    }
-    #[inline(always)]
-    fn ceil(self) -> Self {
-        f64::ceil(self)
+    fn ceil_i32(self) -> i32 {
+        let t = self as i32;
+        if (t as f64) < self {
+            t.saturating_add(1)
+        } else {
+            t
+        }
     }
     #[inline(always)]
     fn abs(self) -> Self {
