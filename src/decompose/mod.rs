@@ -157,21 +157,11 @@ pub fn run(
 /// against the rest of the canvas), most useful first.
 fn score_masks(masks: Vec<Mask>, albedo: &Image) -> Vec<Candidate> {
     let n = (albedo.width * albedo.height) as f64;
-    let mut total = [0f64; 3];
-    for i in 0..albedo.width * albedo.height {
-        for c in 0..3 {
-            total[c] += f64::from(albedo.data[3 * i + c]);
-        }
-    }
+    let total = channel_sums(albedo, 0..albedo.width * albedo.height);
     let mut out: Vec<Candidate> = masks
         .into_iter()
         .map(|mask| {
-            let mut inside = [0f64; 3];
-            for i in mask.indices() {
-                for c in 0..3 {
-                    inside[c] += f64::from(albedo.data[3 * i + c]);
-                }
-            }
+            let inside = channel_sums(albedo, mask.indices());
             let (n_in, n_out) = (mask.area() as f64, (n - mask.area() as f64).max(1.0));
             let d2: f64 = (0..3)
                 .map(|c| (inside[c] / n_in - (total[c] - inside[c]) / n_out).powi(2))
@@ -184,6 +174,17 @@ fn score_masks(masks: Vec<Mask>, albedo: &Image) -> Vec<Candidate> {
         .collect();
     out.sort_by(|a, b| b.gain.total_cmp(&a.gain));
     out
+}
+
+/// Per-channel sums of `image` over the pixel indices `pixels`.
+pub fn channel_sums(image: &Image, pixels: impl Iterator<Item = usize>) -> [f64; 3] {
+    let mut sum = [0f64; 3];
+    for i in pixels {
+        for (s, &v) in sum.iter_mut().zip(&image.data[3 * i..3 * i + 3]) {
+            *s += f64::from(v);
+        }
+    }
+    sum
 }
 
 fn check_aspect(what: &str, w: u32, h: u32, image_w: u32, image_h: u32) -> Result<(), Error> {

@@ -15,7 +15,7 @@ use crate::decompose::binarize::binarize;
 use crate::decompose::mask::Mask;
 use crate::decompose::organize::organize;
 use crate::decompose::segment::Candidate;
-use crate::decompose::{Decomposition, min_mask_area};
+use crate::decompose::{Decomposition, channel_sums, min_mask_area};
 use crate::geom::contour::simplify_closed;
 use crate::render::Image;
 use crate::scene::{LayerKind, Path, Scene};
@@ -348,12 +348,7 @@ fn mean_colour(image: &Image, mask: &Mask) -> Option<[f32; 3]> {
     if mask.is_empty() {
         return None;
     }
-    let mut sum = [0f64; 3];
-    for i in mask.indices() {
-        for c in 0..3 {
-            sum[c] += f64::from(image.data[3 * i + c]);
-        }
-    }
+    let sum = channel_sums(image, mask.indices());
     Some(sum.map(|s| (s / mask.area() as f64) as f32))
 }
 
@@ -364,9 +359,12 @@ fn mean_ratio(numerator: &Image, denominator: &Image, mask: &Mask) -> Option<[f3
     }
     let mut sum = [0f64; 3];
     for i in mask.indices() {
-        for c in 0..3 {
-            sum[c] +=
-                f64::from(numerator.data[3 * i + c] / denominator.data[3 * i + c].max(1.0 / 255.0));
+        let (n, d) = (
+            &numerator.data[3 * i..3 * i + 3],
+            &denominator.data[3 * i..3 * i + 3],
+        );
+        for ((s, &n), &d) in sum.iter_mut().zip(n).zip(d) {
+            *s += f64::from(n / d.max(1.0 / 255.0));
         }
     }
     Some(sum.map(|s| (s / mask.area() as f64) as f32))

@@ -299,8 +299,8 @@ fn mask_overlay(target: &Image, layer: &init::LayerGroups) -> Image {
             (d - 1.0).clamp(0.0, 1.0)
         });
         for i in masked.mask.indices() {
-            for c in 0..3 {
-                out.data[3 * i + c] = 0.5 * target.data[3 * i + c] + 0.5 * tint[c];
+            for (c, &t) in tint.iter().enumerate() {
+                out.data[3 * i + c] = 0.5 * target.data[3 * i + c] + 0.5 * t;
             }
         }
     }
