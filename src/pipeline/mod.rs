@@ -153,6 +153,11 @@ pub enum Error {
 ///
 /// Stages so far: decompose → init. Each stage is one call between [`Stages::begin`] and
 /// [`Stages::end`], which report progress and check `cancel`.
+///
+/// Previews, in order: `00-input` and `00-albedo-map` (working size), `01-masks-albedo` and,
+/// in photo mode, `01-masks-illumination` (each mask's visible part tinted over the input),
+/// `01-init-albedo`, `01-init-shade`, `01-init-light` (each layer over its base colour) and
+/// `01-init-composite`.
 pub fn run(
     inputs: &Inputs,
     params: &Params,
