@@ -1,0 +1,3 @@
+//! The `covec` subcommands: each one's arguments and logic live in its own module.
+
+pub mod vectorize;
