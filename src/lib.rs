@@ -5,6 +5,7 @@
 //! over HTTP.
 
 pub mod imageio;
+pub mod optim;
 pub mod pipeline;
 pub mod render;
 pub mod scene;
