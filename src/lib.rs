@@ -4,8 +4,10 @@
 //! editor. The [`pipeline`] turns an image into a scene in named stages; [`service`] serves it
 //! over HTTP.
 
+pub mod eval;
 pub mod imageio;
 pub mod optim;
 pub mod pipeline;
 pub mod render;
 pub mod scene;
+pub mod synth;
