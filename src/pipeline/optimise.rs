@@ -18,13 +18,20 @@ pub fn stage_names(mode: Mode) -> &'static [&'static str] {
     }
 }
 
-/// Loss at the end of each stage (NaN for stages that did not run), for logs and tests.
+/// The image loss (MSE against the target) at the start and end of one stage: the two-layer
+/// model `R(A)·R(I)` up to the refinement, the SVG model `clamp01(R(A)·R(S) + R(L))` in the polish.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StageLoss {
+    pub stage: &'static str,
+    pub before: f32,
+    pub after: f32,
+}
+
+/// What the optimisation did, for logs and tests.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct OptimiseReport {
-    pub reconstruct_loss: f32,
-    pub refine_loss: f32,
+    pub losses: Vec<StageLoss>,
     pub split: Option<SplitReport>,
-    pub polish_loss: f32,
 }
 
 /// Runs the optimisation stages on an initialised scene. In photo mode the illumination layer is
@@ -57,7 +64,7 @@ pub fn optimise(
     let it = &params.iterations;
     let structure = StructureSettings::default();
     let mut report = OptimiseReport::default();
-    report.reconstruct_loss = optimise_structure(
+    let [initial, after_structure, after_reconstruct] = optimise_structure(
         scene,
         groups,
         target,
@@ -68,6 +75,16 @@ pub fn optimise(
         ctx,
         [stage("structure"), stage("reconstruct")],
     )?;
+    report.losses.push(StageLoss {
+        stage: "structure",
+        before: initial,
+        after: after_structure,
+    });
+    report.losses.push(StageLoss {
+        stage: "reconstruct",
+        before: after_structure,
+        after: after_reconstruct,
+    });
     let growth = match mode {
         Mode::Simple => Growth {
             layer: LayerKind::Albedo,
@@ -78,7 +95,7 @@ pub fn optimise(
             color_max: structure.illumination_cap,
         },
     };
-    report.refine_loss = refine(
+    let [before, after] = refine(
         scene,
         target,
         growth,
@@ -90,13 +107,18 @@ pub fn optimise(
         ctx,
         stage("refine"),
     )?;
+    report.losses.push(StageLoss {
+        stage: "refine",
+        before,
+        after,
+    });
     if mode != Mode::Simple {
         ctx.iteration(stage("split"), 0, 1, None)?;
         let split = split_layers(scene, target, ctx, stage("split"));
         ctx.iteration(stage("split"), 1, 1, Some(split.mse_after))?;
         report.split = Some(split);
     }
-    report.polish_loss = polish::polish(
+    let [before, after] = polish::polish(
         scene,
         target,
         it.polish,
@@ -104,5 +126,10 @@ pub fn optimise(
         ctx,
         stage("polish"),
     )?;
+    report.losses.push(StageLoss {
+        stage: "polish",
+        before,
+        after,
+    });
     Ok(report)
 }

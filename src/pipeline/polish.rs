@@ -14,7 +14,7 @@ pub fn polish_settings() -> AdamSettings {
     AdamSettings::default().scaled(0.5)
 }
 
-/// Runs `iterations` joint steps and returns the final MSE of the SVG model.
+/// Runs `iterations` joint steps and returns the MSE of the SVG model before and after.
 pub fn polish(
     scene: &mut Scene,
     target: &Image,
@@ -22,7 +22,7 @@ pub fn polish(
     settings: AdamSettings,
     ctx: &StageContext,
     stage: Stage,
-) -> Result<f32, Error> {
+) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let mut adams: Vec<Adam> = LayerKind::ALL
@@ -39,7 +39,7 @@ pub fn polish(
     let mut d_layers = [Image::default(), Image::default(), Image::default()];
     let (mut composite, mut d_composite) = (Image::default(), Image::default());
     let mut grads = Vec::new();
-    let mut loss = render_all(
+    let initial = render_all(
         &mut canvas,
         scene,
         target,
@@ -47,6 +47,7 @@ pub fn polish(
         &mut composite,
         &mut d_composite,
     );
+    let mut loss = initial;
     for it in 0..iterations {
         let [d_a, d_s, d_l] = &mut d_layers;
         svg_composite_backward(
@@ -78,7 +79,7 @@ pub fn polish(
     for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
         ctx.preview(stage, kind.name(), &layers[k]);
     }
-    Ok(loss)
+    Ok([initial, loss])
 }
 
 /// Renders the three layers and the SVG composite; returns the MSE and writes its gradient.

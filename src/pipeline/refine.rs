@@ -54,8 +54,8 @@ pub struct Growth {
     pub color_max: f32,
 }
 
-/// Runs up to `rounds` rounds of `iterations` each and returns the final reconstruction loss
-/// ‖I − R(A)·R(I)‖². Afterwards `scene.path_count() == budget` unless the scene already held more.
+/// Runs up to `rounds` rounds of `iterations` each and returns the reconstruction loss
+/// ‖I − R(A)·R(I)‖² before and after. Afterwards `scene.path_count() == budget` unless the scene already held more.
 #[allow(clippy::too_many_arguments)]
 pub fn refine(
     scene: &mut Scene,
@@ -68,7 +68,7 @@ pub fn refine(
     seed: u64,
     ctx: &StageContext,
     stage: Stage,
-) -> Result<f32, Error> {
+) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let mut rng = Rng::new(seed, 0x5245_4649);
@@ -84,6 +84,9 @@ pub fn refine(
     let mut frozen = Image::default();
     let mut grown = Image::default();
     let mut composite = Image::default();
+    canvas.render_layer(scene, growth.layer, &mut grown);
+    multiply(&grown, &factor, &mut composite);
+    let initial = crate::optim::loss::mse_value(&composite, target);
 
     for round in 0..rounds {
         let remaining = budget.saturating_sub(scene.path_count());
@@ -181,7 +184,7 @@ pub fn refine(
         },
         &grown,
     );
-    Ok(loss)
+    Ok([initial, loss])
 }
 
 /// Trains `paths`, painted over `backdrop` and multiplied by `factor`, against `target`.

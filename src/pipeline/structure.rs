@@ -61,7 +61,8 @@ const OVERLAP_OPACITY: f32 = 0.3;
 
 /// Runs `structure_iterations` of the structure loss, then `reconstruction_iterations` of the
 /// reconstruction loss, on the albedo and illumination (`scene.shade`) layers.
-/// Returns the reconstruction loss at the end.
+/// Returns the reconstruction loss ‖I − R(A)·R(I)‖² before, after the structure iterations
+/// and at the end.
 #[allow(clippy::too_many_arguments)]
 pub fn optimise_structure(
     scene: &mut Scene,
@@ -73,9 +74,11 @@ pub fn optimise_structure(
     seed: u64,
     ctx: &StageContext,
     stages: [Stage; 2],
-) -> Result<f32, Error> {
+) -> Result<[f32; 3], Error> {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
+    let mut scratch = Scratch::default();
+    let initial = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
     let mut adam_albedo = Adam::new(settings.adam, Bounds::canvas(w, h, 1.0));
     let mut adam_illum = Adam::new(
         settings.adam,
@@ -85,7 +88,6 @@ pub fn optimise_structure(
     let prepared = prepare_groups(scene, groups, w, h, seed)?;
     let mut grads_a = Vec::new();
     let mut grads_i = Vec::new();
-    let mut scratch = Scratch::default();
     for it in 0..structure_iterations {
         let mut loss = 0.0;
         for (kind, adam, grads) in [
@@ -105,11 +107,9 @@ pub fn optimise_structure(
         }
         ctx.iteration(stages[0], it + 1, structure_iterations, Some(loss))?;
     }
-    if structure_iterations > 0 {
-        preview_two_layers(&mut canvas, scene, target, ctx, stages[0]);
-    }
+    let after_structure = preview_two_layers(&mut canvas, scene, target, ctx, stages[0]);
 
-    let mut loss = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
+    let mut loss = after_structure;
     for it in 0..reconstruction_iterations {
         reset_grads(&mut grads_a, &scene.albedo.paths);
         reset_grads(&mut grads_i, &scene.shade.paths);
@@ -127,7 +127,7 @@ pub fn optimise_structure(
     if reconstruction_iterations > 0 {
         loss = preview_two_layers(&mut canvas, scene, target, ctx, stages[1]);
     }
-    Ok(loss)
+    Ok([initial, after_structure, loss])
 }
 
 /// Reusable buffers.
