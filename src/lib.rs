@@ -5,6 +5,7 @@
 //! over HTTP.
 
 pub mod eval;
+pub mod geom;
 pub mod imageio;
 pub mod optim;
 pub mod pipeline;
