@@ -5,12 +5,13 @@
 
 use std::time::Instant;
 
-use crate::optim::loss::{mse, svg_composite};
+use crate::optim::loss::mse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
 use crate::pipeline::stage::{Canvas, Stage, StageContext};
 use crate::pipeline::{Error, Params};
 use crate::render::Image;
+use crate::render::composite::svg_model;
 use crate::scene::{LayerKind, Path, Point, Scene};
 
 /// What a browser shows for `scene` at its working size: `clamp01(R(A)·R(S) + R(L))`, with
@@ -33,7 +34,7 @@ pub fn render_scene(scene: &Scene) -> Image {
         canvas.render(&paths, kind.base(), &mut layers[k]);
     }
     let mut out = Image::default();
-    svg_composite(&layers[0], &layers[1], &layers[2], &mut out);
+    svg_model(&layers[0], &layers[1], &layers[2], &mut out);
     out
 }
 

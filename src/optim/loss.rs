@@ -1,7 +1,5 @@
-//! Losses on rendered images, each returning its value and writing dLoss/dPixel, plus the two
-//! compositing models with their backward passes:
-//! - two-layer model of the structure and refinement stages: `R(A) · R(I)`;
-//! - the SVG model of the final file: `clamp01(R(A) · R(S) + R(L))`.
+//! Losses on rendered images, each returning its value and writing dLoss/dPixel. The compositing
+//! models and their backwards are in [`crate::render::composite`].
 
 use crate::render::Image;
 
@@ -46,69 +44,6 @@ pub fn overlap_penalty(img: &Image, delta: f32, weight: f32, grad: &mut Image) -
         }
     }
     (f64::from(weight) * sum / f64::from(n)) as f32
-}
-
-/// `out = a · b` per value.
-pub fn multiply(a: &Image, b: &Image, out: &mut Image) {
-    resize_like(out, a);
-    for ((o, &x), &y) in out.data.iter_mut().zip(&a.data).zip(&b.data) {
-        *o = x * y;
-    }
-}
-
-/// Backward of [`multiply`]: `d_a = d_out · b`, `d_b = d_out · a` (either may be skipped).
-pub fn multiply_backward(
-    d_out: &Image,
-    a: &Image,
-    b: &Image,
-    d_a: Option<&mut Image>,
-    d_b: Option<&mut Image>,
-) {
-    if let Some(d_a) = d_a {
-        resize_like(d_a, a);
-        for ((d, &g), &y) in d_a.data.iter_mut().zip(&d_out.data).zip(&b.data) {
-            *d = g * y;
-        }
-    }
-    if let Some(d_b) = d_b {
-        resize_like(d_b, b);
-        for ((d, &g), &x) in d_b.data.iter_mut().zip(&d_out.data).zip(&a.data) {
-            *d = g * x;
-        }
-    }
-}
-
-/// The SVG model: `out = clamp01(a · s + l)`.
-pub fn svg_composite(a: &Image, s: &Image, l: &Image, out: &mut Image) {
-    resize_like(out, a);
-    for (i, o) in out.data.iter_mut().enumerate() {
-        *o = (a.data[i] * s.data[i] + l.data[i]).clamp(0.0, 1.0);
-    }
-}
-
-/// Backward of [`svg_composite`]; the clamp passes gradient only where `0 < a·s + l < 1`.
-pub fn svg_composite_backward(
-    d_out: &Image,
-    a: &Image,
-    s: &Image,
-    l: &Image,
-    grads: [&mut Image; 3],
-) {
-    let [d_a, d_s, d_l] = grads;
-    for d in [&mut *d_a, &mut *d_s, &mut *d_l] {
-        resize_like(d, a);
-    }
-    for i in 0..a.data.len() {
-        let v = a.data[i] * s.data[i] + l.data[i];
-        let g = if v > 0.0 && v < 1.0 {
-            d_out.data[i]
-        } else {
-            0.0
-        };
-        d_a.data[i] = g * s.data[i];
-        d_s.data[i] = g * a.data[i];
-        d_l.data[i] = g;
-    }
 }
 
 /// Makes `img` the size of `like`, zero-filled when the size changes.
@@ -170,38 +105,5 @@ mod tests {
         check_grad(&img, &grad, |x| {
             overlap_penalty(x, 0.6, 2.0, &mut Image::default())
         });
-    }
-
-    #[test]
-    fn composite_gradients_match_finite_differences() {
-        let a = image(&[0.2, 0.5, 0.9, 0.3, 0.8, 0.6]);
-        let s = image(&[0.7, 1.5, 0.4, 0.9, 0.5, 0.3]);
-        let l = image(&[0.1, 0.0, 0.3, 0.2, 0.05, 0.9]);
-        let target = image(&[0.3, 0.6, 0.5, 0.2, 0.1, 0.4]);
-        let loss_of = |a: &Image, s: &Image, l: &Image| {
-            let mut out = Image::default();
-            svg_composite(a, s, l, &mut out);
-            mse_value(&out, &target)
-        };
-        let mut out = Image::default();
-        svg_composite(&a, &s, &l, &mut out);
-        let mut d_out = Image::default();
-        mse(&out, &target, &mut d_out);
-        let (mut d_a, mut d_s, mut d_l) = (Image::default(), Image::default(), Image::default());
-        svg_composite_backward(&d_out, &a, &s, &l, [&mut d_a, &mut d_s, &mut d_l]);
-        check_grad(&a, &d_a, |x| loss_of(x, &s, &l));
-        check_grad(&s, &d_s, |x| loss_of(&a, x, &l));
-        check_grad(&l, &d_l, |x| loss_of(&a, &s, x));
-
-        let product_loss = |a: &Image, b: &Image| {
-            let mut out = Image::default();
-            multiply(a, b, &mut out);
-            mse_value(&out, &target)
-        };
-        multiply(&a, &s, &mut out);
-        mse(&out, &target, &mut d_out);
-        multiply_backward(&d_out, &a, &s, Some(&mut d_a), Some(&mut d_s));
-        check_grad(&a, &d_a, |x| product_loss(x, &s));
-        check_grad(&s, &d_s, |x| product_loss(&a, x));
     }
 }

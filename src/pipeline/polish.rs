@@ -4,9 +4,10 @@
 
 use super::Error;
 use super::stage::{Canvas, Stage, StageContext};
-use crate::optim::loss::{mse, svg_composite, svg_composite_backward};
+use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
 use crate::render::Image;
+use crate::render::composite::{svg_model, svg_model_backward};
 use crate::scene::{LayerKind, Scene};
 
 /// Adam of the polish: half the paper's rates, since the layers are already close.
@@ -50,12 +51,14 @@ pub fn polish(
     let mut loss = initial;
     for it in 0..iterations {
         let [d_a, d_s, d_l] = &mut d_layers;
-        svg_composite_backward(
-            &d_composite,
+        svg_model_backward(
             &layers[0],
             &layers[1],
             &layers[2],
-            [d_a, d_s, d_l],
+            &d_composite,
+            d_a,
+            d_s,
+            d_l,
         );
         for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
             let paths = &mut scene.layer_mut(kind).paths;
@@ -94,6 +97,6 @@ fn render_all(
     for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
         canvas.render_layer(scene, kind, &mut layers[k]);
     }
-    svg_composite(&layers[0], &layers[1], &layers[2], composite);
+    svg_model(&layers[0], &layers[1], &layers[2], composite);
     mse(composite, target, d_composite)
 }

@@ -8,10 +8,11 @@
 use super::Error;
 use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, high_error_regions};
 use super::stage::{Canvas, Stage, StageContext};
-use crate::optim::loss::{mse, multiply, multiply_backward};
+use crate::optim::loss::mse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
 use crate::render::Image;
+use crate::render::composite::{product, product_backward};
 use crate::scene::{LayerKind, Path, Scene};
 
 /// Settings of the refinement.
@@ -85,7 +86,7 @@ pub fn refine(
     let mut grown = Image::default();
     let mut composite = Image::default();
     canvas.render_layer(scene, growth.layer, &mut grown);
-    multiply(&grown, &factor, &mut composite);
+    product(&grown, &factor, &mut composite);
     let initial = crate::optim::loss::mse_value(&composite, target);
 
     for round in 0..rounds {
@@ -101,7 +102,7 @@ pub fn refine(
         };
 
         canvas.render_layer(scene, growth.layer, &mut frozen);
-        multiply(&frozen, &factor, &mut composite);
+        product(&frozen, &factor, &mut composite);
         let error: Vec<f32> = composite
             .data
             .chunks_exact(3)
@@ -172,7 +173,7 @@ pub fn refine(
     }
 
     canvas.render_layer(scene, growth.layer, &mut grown);
-    multiply(&grown, &factor, &mut composite);
+    product(&grown, &factor, &mut composite);
     let loss = crate::optim::loss::mse_value(&composite, target);
     ctx.preview(stage, "composite", &composite);
     ctx.preview(
@@ -201,18 +202,15 @@ fn train(
     mut report: impl FnMut(u32, f32) -> Result<(), Error>,
 ) -> Result<(), Error> {
     let mut adam = Adam::new(settings.adam, bounds);
-    let (mut layer, mut composite, mut d_composite, mut d_layer) = (
-        Image::default(),
-        Image::default(),
-        Image::default(),
-        Image::default(),
-    );
+    let (mut layer, mut composite, mut d_composite) =
+        (Image::default(), Image::default(), Image::default());
+    let (mut d_layer, mut d_factor) = (Image::default(), Image::default());
     let mut grads = Vec::new();
     for it in 0..iterations {
         canvas.render_over(paths, backdrop, &mut layer);
-        multiply(&layer, factor, &mut composite);
+        product(&layer, factor, &mut composite);
         let loss = mse(&composite, target, &mut d_composite);
-        multiply_backward(&d_composite, &layer, factor, Some(&mut d_layer), None);
+        product_backward(&layer, factor, &d_composite, &mut d_layer, &mut d_factor);
         reset_grads(&mut grads, paths);
         canvas.backward_over(paths, backdrop, &d_layer, &mut grads);
         adam.step(paths, &grads);

@@ -3,8 +3,9 @@
 //! their shapes, get opacity 1 and the mean of the residual `I − R(A)·R(S)` over their area.
 
 use super::stage::{Canvas, Stage, StageContext};
-use crate::optim::loss::{mse_value, multiply, svg_composite};
+use crate::optim::loss::mse_value;
 use crate::render::Image;
+use crate::render::composite::{product, svg_model};
 use crate::scene::{LayerKind, Path, Scene};
 
 /// How the separation went, for logs and tests.
@@ -32,7 +33,7 @@ pub fn split_layers(
         (Image::default(), Image::default(), Image::default());
     canvas.render_layer(scene, LayerKind::Albedo, &mut albedo);
     canvas.render_layer(scene, LayerKind::Shade, &mut illumination);
-    multiply(&albedo, &illumination, &mut before);
+    product(&albedo, &illumination, &mut before);
 
     let (shade, lights): (Vec<Path>, Vec<Path>) = std::mem::take(&mut scene.shade.paths)
         .into_iter()
@@ -40,8 +41,8 @@ pub fn split_layers(
     scene.shade.paths = shade;
     let mut shaded = Image::default();
     canvas.render_layer(scene, LayerKind::Shade, &mut shaded);
-    let mut product = Image::default();
-    multiply(&albedo, &shaded, &mut product);
+    let mut residual_base = Image::default();
+    product(&albedo, &shaded, &mut residual_base);
 
     let mut coverage = Vec::new();
     scene.light.paths = lights
@@ -54,7 +55,8 @@ pub fn split_layers(
                 for (p, &a) in coverage.iter().enumerate() {
                     if a > 0.0 {
                         for c in 0..3 {
-                            color[c] += a * (target.data[3 * p + c] - product.data[3 * p + c]);
+                            color[c] +=
+                                a * (target.data[3 * p + c] - residual_base.data[3 * p + c]);
                         }
                     }
                 }
@@ -77,7 +79,7 @@ pub fn split_layers(
     let mut light = Image::default();
     canvas.render_layer(scene, LayerKind::Light, &mut light);
     let mut after = Image::default();
-    svg_composite(&albedo, &shaded, &light, &mut after);
+    svg_model(&albedo, &shaded, &light, &mut after);
     let clamped_before = Image {
         data: before.data.iter().map(|v| v.clamp(0.0, 1.0)).collect(),
         ..before.clone()

@@ -9,9 +9,10 @@ use image::GrayImage;
 
 use super::Error;
 use super::stage::{Canvas, Stage, StageContext};
-use crate::optim::loss::{mse, multiply, multiply_backward, overlap_penalty};
+use crate::optim::loss::{mse, overlap_penalty};
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
+use crate::render::composite::{product, product_backward};
 use crate::render::{Image, PathGrad};
 use crate::scene::{LayerKind, Path, Scene};
 
@@ -51,7 +52,7 @@ impl Default for StructureSettings {
             adam: AdamSettings::default(),
             overlap_delta: 178.0 / 255.0,
             overlap_weight: 0.5,
-            illumination_cap: 4.0,
+            illumination_cap: crate::render::composite::ILLUMINATION_CAP,
         }
     }
 }
@@ -151,10 +152,10 @@ pub(crate) fn reconstruction_loss(
 ) -> f32 {
     canvas.render_layer(scene, LayerKind::Albedo, &mut s.a);
     canvas.render_layer(scene, LayerKind::Shade, &mut s.b);
-    multiply(&s.a, &s.b, &mut s.c);
+    product(&s.a, &s.b, &mut s.c);
     let loss = mse(&s.c, target, &mut s.d_c);
     if let Some((grads_a, grads_i)) = grads {
-        multiply_backward(&s.d_c, &s.a, &s.b, Some(&mut s.d_a), Some(&mut s.d_b));
+        product_backward(&s.a, &s.b, &s.d_c, &mut s.d_a, &mut s.d_b);
         canvas.raster.backward(
             &scene.albedo.paths,
             LayerKind::Albedo.base(),
