@@ -233,6 +233,20 @@ mod tests {
         assert!(q.psnr > 10.0 && q.psnr < 30.0, "{q:?}");
     }
 
+    /// For flat images SSIM reduces to the luminance term (2·μx·μy + C1) / (μx² + μy² + C1).
+    #[test]
+    fn ssim_of_flat_images_matches_the_closed_form() {
+        let a = Image::filled(20, 16, [0.2, 0.5, 0.9]);
+        let b = Image::filled(20, 16, [0.4, 0.5, 0.3]);
+        let c1 = 1e-4f64;
+        let expected: f64 = [(0.2, 0.4), (0.5, 0.5), (0.9, 0.3)]
+            .iter()
+            .map(|&(x, y): &(f64, f64)| (2.0 * x * y + c1) / (x * x + y * y + c1))
+            .sum::<f64>()
+            / 3.0;
+        assert!((f64::from(ssim(&a, &b)) - expected).abs() < 1e-5);
+    }
+
     #[test]
     fn peak_memory_is_reported() {
         assert!(peak_memory_bytes().unwrap_or(1) > 0);
