@@ -328,14 +328,7 @@ fn merge(canvas: &mut Canvas, paths: &mut Vec<Path>, settings: &RefineSettings) 
     if n < 2 {
         return 0;
     }
-    let coverages: Vec<Vec<f32>> = paths
-        .iter()
-        .map(|p| {
-            let mut c = Vec::new();
-            canvas.coverage(p, &mut c);
-            c
-        })
-        .collect();
+    let coverages: Vec<Vec<(u32, f32)>> = paths.iter().map(|p| canvas.coverage(p)).collect();
     let mut parent: Vec<usize> = (0..n).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
@@ -353,11 +346,7 @@ fn merge(canvas: &mut Canvas, paths: &mut Vec<Path>, settings: &RefineSettings) 
             if l1 > settings.merge_color_l1 {
                 continue;
             }
-            let overlap = coverages[i]
-                .iter()
-                .zip(&coverages[j])
-                .filter(|&(a, b)| a + b > 1.9)
-                .count();
+            let overlap = solid_overlap(&coverages[i], &coverages[j]);
             if overlap >= settings.merge_overlap {
                 let (ri, rj) = (root(&mut parent, i), root(&mut parent, j));
                 parent[ri.max(rj)] = ri.min(rj);
@@ -373,21 +362,24 @@ fn merge(canvas: &mut Canvas, paths: &mut Vec<Path>, settings: &RefineSettings) 
     let mut merged = Vec::new();
     let mut removed = vec![false; n];
     for group in groups.iter().filter(|g| g.len() > 1) {
-        let union: Vec<f32> = (0..coverages[0].len())
-            .map(|p| group.iter().map(|&i| coverages[i][p]).fold(0.0, f32::max))
-            .collect();
-        let weighted = union
-            .iter()
-            .enumerate()
-            .filter(|&(_, &c)| c > 0.0)
-            .map(|(p, &c)| ((p % width) as f32 + 0.5, (p / width) as f32 + 0.5, c));
+        let mut union = std::collections::BTreeMap::new();
+        for &i in group {
+            for &(p, c) in &coverages[i] {
+                let v = union.entry(p).or_insert(0.0f32);
+                *v = v.max(c);
+            }
+        }
+        let weighted = union.iter().map(|(&p, &c)| {
+            let p = p as usize;
+            ((p % width) as f32 + 0.5, (p / width) as f32 + 0.5, c)
+        });
         let Some(ellipse) = super::regions::ellipse_for_pixels(weighted, settings.min_radius)
         else {
             continue;
         };
         let areas: Vec<f32> = group
             .iter()
-            .map(|&i| coverages[i].iter().sum::<f32>().max(1e-6))
+            .map(|&i| coverages[i].iter().map(|&(_, c)| c).sum::<f32>().max(1e-6))
             .collect();
         let total: f32 = areas.iter().sum();
         let mut color = [0.0; 3];
@@ -415,5 +407,22 @@ fn merge(canvas: &mut Canvas, paths: &mut Vec<Path>, settings: &RefineSettings) 
     });
     let count = merged.len();
     paths.extend(merged);
+    count
+}
+
+/// Pixels where two sparse coverages (sorted by pixel) are both nearly full (sum > 1.9).
+fn solid_overlap(a: &[(u32, f32)], b: &[(u32, f32)]) -> usize {
+    let (mut i, mut j, mut count) = (0, 0, 0);
+    while i < a.len() && j < b.len() {
+        match a[i].0.cmp(&b[j].0) {
+            std::cmp::Ordering::Less => i += 1,
+            std::cmp::Ordering::Greater => j += 1,
+            std::cmp::Ordering::Equal => {
+                count += usize::from(a[i].1 + b[j].1 > 1.9);
+                i += 1;
+                j += 1;
+            }
+        }
+    }
     count
 }

@@ -44,21 +44,16 @@ pub fn split_layers(
     let mut residual_base = Image::default();
     product(&albedo, &shaded, &mut residual_base);
 
-    let mut coverage = Vec::new();
     scene.light.paths = lights
         .into_iter()
         .map(|path| {
-            canvas.coverage(&path, &mut coverage);
-            let area: f32 = coverage.iter().sum();
+            let coverage = canvas.coverage(&path);
+            let area: f32 = coverage.iter().map(|&(_, a)| a).sum();
             let mut color = [0.0; 3];
-            if area > 0.0 {
-                for (p, &a) in coverage.iter().enumerate() {
-                    if a > 0.0 {
-                        for c in 0..3 {
-                            color[c] +=
-                                a * (target.data[3 * p + c] - residual_base.data[3 * p + c]);
-                        }
-                    }
+            for &(p, a) in &coverage {
+                let p = p as usize;
+                for c in 0..3 {
+                    color[c] += a * (target.data[3 * p + c] - residual_base.data[3 * p + c]);
                 }
             }
             let color = color.map(|c| {

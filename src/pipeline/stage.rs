@@ -144,8 +144,9 @@ impl Canvas {
             .backward(paths, [1.0; 3], &self.scratch_grad, grads);
     }
 
-    /// Per-pixel coverage in [0, 1] of `path` alone (its opacity ignored).
-    pub fn coverage(&mut self, path: &Path, out: &mut Vec<f32>) {
+    /// Coverage in (0, 1] of `path` alone (its opacity ignored) at the pixels it touches, as
+    /// `(y * width + x, coverage)` in pixel order: sparse, so many paths' coverages fit in memory.
+    pub fn coverage(&mut self, path: &Path) -> Vec<(u32, f32)> {
         let silhouette = Path {
             points: path.points.clone(),
             color: [1.0; 3],
@@ -158,12 +159,12 @@ impl Canvas {
             self.height,
             &mut self.scratch_black,
         );
-        out.clear();
-        out.extend(
-            self.scratch_black
-                .data
-                .chunks_exact(3)
-                .map(|px| px[0].clamp(0.0, 1.0)),
-        );
+        self.scratch_black
+            .data
+            .chunks_exact(3)
+            .enumerate()
+            .filter(|(_, px)| px[0] > 0.0)
+            .map(|(i, px)| (i as u32, px[0].min(1.0)))
+            .collect()
     }
 }
