@@ -11,32 +11,7 @@ use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
 use crate::pipeline::stage::{Canvas, Stage, StageContext};
 use crate::pipeline::{Error, Params};
 use crate::render::Image;
-use crate::render::composite::svg_model;
-use crate::scene::{LayerKind, Path, Point, Scene};
-
-/// What a browser shows for `scene` at its working size: `clamp01(R(A)·R(S) + R(L))`, with
-/// colours and opacities clamped to [0, 1] as in the file.
-pub fn render_scene(scene: &Scene) -> Image {
-    let (w, h) = (scene.width as usize, scene.height as usize);
-    let mut canvas = Canvas::new(w, h);
-    let mut layers = [Image::default(), Image::default(), Image::default()];
-    for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
-        let paths: Vec<Path> = scene
-            .layer(kind)
-            .paths
-            .iter()
-            .map(|p| Path {
-                points: p.points.clone(),
-                color: p.color.map(|c| c.clamp(0.0, 1.0)),
-                opacity: p.opacity.clamp(0.0, 1.0),
-            })
-            .collect();
-        canvas.render(&paths, kind.base(), &mut layers[k]);
-    }
-    let mut out = Image::default();
-    svg_model(&layers[0], &layers[1], &layers[2], &mut out);
-    out
-}
+use crate::scene::{Path, Point, Scene};
 
 /// Image-quality numbers of a reconstruction against its target (values in [0, 1]).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -4,6 +4,7 @@
 //! editor. The [`pipeline`] turns an image into a scene in named stages; [`service`] serves it
 //! over HTTP.
 
+pub mod decompose;
 pub mod eval;
 pub mod geom;
 pub mod imageio;
@@ -11,4 +12,5 @@ pub mod optim;
 pub mod pipeline;
 pub mod render;
 pub mod scene;
+pub mod svg;
 pub mod synth;

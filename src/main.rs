@@ -1,6 +1,7 @@
 //! The `covec` command line.
 
 use clap::{Parser, Subcommand};
+mod cli;
 
 #[derive(Parser)]
 #[command(
@@ -14,9 +15,19 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    Vectorize(cli::vectorize::Args),
+    Eval(cli::eval::Args),
+}
 
 fn main() {
     let cli = Cli::parse();
-    match cli.command {}
+    let result = match &cli.command {
+        Command::Vectorize(args) => cli::vectorize::run(args).map_err(|e| e.to_string()),
+        Command::Eval(args) => cli::eval::run(args).map_err(|e| e.to_string()),
+    };
+    if let Err(error) = result {
+        eprintln!("error: {error}");
+        std::process::exit(1);
+    }
 }

@@ -6,6 +6,7 @@ use std::sync::Mutex;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
+use covec::decompose::mask::Mask;
 use covec::pipeline::optimise::{OptimiseReport, optimise};
 use covec::pipeline::stage::StageContext;
 use covec::pipeline::structure::MaskGroup;
@@ -29,6 +30,10 @@ fn params(paths: u32) -> Params {
         },
         ..Params::default()
     }
+}
+
+fn to_mask(gray: &GrayImage) -> Mask {
+    Mask::from_fn(SIZE, SIZE, |x, y| gray.get_pixel(x as u32, y as u32)[0] > 0)
 }
 
 /// Bounding-box rectangle of a mask, `None` if empty.
@@ -84,7 +89,7 @@ fn hand_init(truth: &SyntheticScene, photo: bool) -> (Scene, Vec<MaskGroup>) {
     let mut groups = vec![MaskGroup {
         layer: LayerKind::Albedo,
         paths: vec![0],
-        masks: vec![full],
+        masks: vec![to_mask(&full)],
     }];
     let mut regions = MaskGroup {
         layer: LayerKind::Albedo,
@@ -104,7 +109,7 @@ fn hand_init(truth: &SyntheticScene, photo: bool) -> (Scene, Vec<MaskGroup>) {
         if k != background {
             let path = bbox_path(mask, mean_over(&truth.image, mask)).unwrap();
             regions.paths.push(scene.albedo.paths.len());
-            regions.masks.push(mask.clone());
+            regions.masks.push(to_mask(mask));
             scene.albedo.paths.push(path);
         }
         if photo {
@@ -119,7 +124,7 @@ fn hand_init(truth: &SyntheticScene, photo: bool) -> (Scene, Vec<MaskGroup>) {
             }
             if let Some(path) = bbox_path(&dark, [0.8; 3]) {
                 shadows.paths.push(scene.shade.paths.len());
-                shadows.masks.push(dark);
+                shadows.masks.push(to_mask(&dark));
                 scene.shade.paths.push(path);
             }
         }

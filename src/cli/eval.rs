@@ -23,11 +23,21 @@ pub struct Args {
     #[arg(required = true, value_name = "DIR|IMAGE")]
     pub inputs: Vec<PathBuf>,
     /// Path budgets to run, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "16,32,64,128", value_name = "N,...")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "16,32,64,128",
+        value_name = "N,..."
+    )]
     pub paths: Vec<u32>,
     /// Methods to run, comma-separated: covec (auto mode), covec-photo, covec-simple, random
     /// (random paths, reconstruction loss only, same budget and iteration count).
-    #[arg(long, value_delimiter = ',', default_value = "covec,random", value_name = "M,...")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "covec,random",
+        value_name = "M,..."
+    )]
     pub method: Vec<Method>,
     /// Where to write the CSV (one row per run). Default: standard output.
     #[arg(long, value_name = "results.csv")]
@@ -64,13 +74,22 @@ impl Method {
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     #[error("cannot read {path}: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("{path}: {source}")]
     Input { path: PathBuf, source: InputError },
     #[error("{path}: {source}")]
-    Pipeline { path: PathBuf, source: pipeline::Error },
+    Pipeline {
+        path: PathBuf,
+        source: pipeline::Error,
+    },
     #[error("cannot write {path}: {source}")]
-    Write { path: PathBuf, source: std::io::Error },
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("no images found in the given inputs")]
     NoImages,
 }
@@ -129,7 +148,10 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let mut rows = Vec::new();
     let total = images.len() * args.paths.len() * args.method.len();
     for image_path in &images {
-        let bytes = std::fs::read(image_path).map_err(|source| Error::Read { path: image_path.clone(), source })?;
+        let bytes = std::fs::read(image_path).map_err(|source| Error::Read {
+            path: image_path.clone(),
+            source,
+        })?;
         for &budget in &args.paths {
             for &method in &args.method {
                 let row = run_one(image_path, &bytes, method, budget, args)?;
@@ -143,7 +165,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
                     row.quality.psnr,
                     row.quality.ssim,
                     row.seconds,
-                    row.peak_mb.map(|m| format!("{m:.0}")).unwrap_or_else(|| "?".into()),
+                    row.peak_mb
+                        .map(|m| format!("{m:.0}"))
+                        .unwrap_or_else(|| "?".into()),
                 );
                 csv.push_str(&row.csv());
                 csv.push('\n');
@@ -152,21 +176,45 @@ pub fn run(args: &Args) -> Result<(), Error> {
         }
     }
     match &args.out {
-        Some(path) => std::fs::write(path, &csv).map_err(|source| Error::Write { path: path.clone(), source })?,
+        Some(path) => std::fs::write(path, &csv).map_err(|source| Error::Write {
+            path: path.clone(),
+            source,
+        })?,
         None => print!("{csv}"),
     }
     eprint!("{}", summary(&rows));
     Ok(())
 }
 
-fn run_one(path: &Path, bytes: &[u8], method: Method, budget: u32, args: &Args) -> Result<Row, Error> {
-    let input_error = |source| Error::Input { path: path.to_path_buf(), source };
-    let pipeline_error = |source| Error::Pipeline { path: path.to_path_buf(), source };
-    let mut params = Params { paths: budget, max_size: args.max_size, seed: args.seed, ..Params::default() };
+fn run_one(
+    path: &Path,
+    bytes: &[u8],
+    method: Method,
+    budget: u32,
+    args: &Args,
+) -> Result<Row, Error> {
+    let input_error = |source| Error::Input {
+        path: path.to_path_buf(),
+        source,
+    };
+    let pipeline_error = |source| Error::Pipeline {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut params = Params {
+        paths: budget,
+        max_size: args.max_size,
+        seed: args.seed,
+        ..Params::default()
+    };
     let scale = |n: u32| ((n as f32 * args.iteration_scale).round() as u32).max(u32::from(n > 0));
     let it = &mut params.iterations;
-    (it.structure, it.reconstruction, it.refine, it.polish) =
-        (scale(it.structure), scale(it.reconstruction), scale(it.refine), scale(it.polish));
+    (it.structure, it.reconstruction, it.refine, it.polish) = (
+        scale(it.structure),
+        scale(it.reconstruction),
+        scale(it.refine),
+        scale(it.polish),
+    );
 
     eval::reset_peak_memory();
     let started = Instant::now();
@@ -176,8 +224,14 @@ fn run_one(path: &Path, bytes: &[u8], method: Method, budget: u32, args: &Args) 
     let cancel = AtomicBool::new(false);
     let (scene, mode): (Scene, Mode) = match method {
         Method::Random => {
-            let ctx = StageContext { observer: &Quiet, cancel: &cancel, started, stage_count: 1 };
-            let mut scene = eval::random_baseline(&target, &params, &ctx).map_err(pipeline_error)?;
+            let ctx = StageContext {
+                observer: &Quiet,
+                cancel: &cancel,
+                started,
+                stage_count: 1,
+            };
+            let mut scene =
+                eval::random_baseline(&target, &params, &ctx).map_err(pipeline_error)?;
             (scene.original_width, scene.original_height) = (image.width(), image.height());
             (scene, Mode::Simple)
         }
@@ -187,17 +241,25 @@ fn run_one(path: &Path, bytes: &[u8], method: Method, budget: u32, args: &Args) 
                 Method::CovecSimple => Mode::Simple,
                 _ => Mode::Auto,
             };
-            let inputs = Inputs { image, albedo: None, masks: Masks::None };
-            let output = pipeline::run(&inputs, &params, &Quiet, &cancel).map_err(pipeline_error)?;
+            let inputs = Inputs {
+                image,
+                albedo: None,
+                masks: Masks::None,
+            };
+            let output =
+                pipeline::run(&inputs, &params, &Quiet, &cancel).map_err(pipeline_error)?;
             (output.scene, output.mode)
         }
     };
     let svg_bytes = svg::to_svg(&scene, &SvgOptions::default()).len();
     let seconds = started.elapsed().as_secs_f64();
     let peak_mb = eval::peak_memory_bytes().map(|b| b as f64 / (1024.0 * 1024.0));
-    let quality = eval::quality(&eval::render_scene(&scene), &target);
+    let quality = eval::quality(&pipeline::composite(&scene), &target);
     Ok(Row {
-        image: path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(),
+        image: path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
         class: path
             .parent()
             .and_then(Path::file_name)
@@ -210,7 +272,11 @@ fn run_one(path: &Path, bytes: &[u8], method: Method, budget: u32, args: &Args) 
             Mode::Auto => "auto",
         },
         budget,
-        paths: [scene.albedo.paths.len(), scene.shade.paths.len(), scene.light.paths.len()],
+        paths: [
+            scene.albedo.paths.len(),
+            scene.shade.paths.len(),
+            scene.light.paths.len(),
+        ],
         segments: scene.segment_count(),
         svg_bytes,
         quality,
@@ -225,24 +291,45 @@ fn working_image(image: &image::DynamicImage, w: u32, h: u32) -> Image {
     if (rgb.width, rgb.height) == (w as usize, h as usize) {
         return rgb;
     }
-    let buffer = image::Rgb32FImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data).expect("same size");
+    let buffer = image::Rgb32FImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data)
+        .expect("same size");
     let small = image::imageops::resize(&buffer, w, h, image::imageops::FilterType::Triangle);
-    Image { width: w as usize, height: h as usize, data: small.into_raw().into_iter().map(|v| v.clamp(0.0, 1.0)).collect() }
+    Image {
+        width: w as usize,
+        height: h as usize,
+        data: small
+            .into_raw()
+            .into_iter()
+            .map(|v| v.clamp(0.0, 1.0))
+            .collect(),
+    }
 }
 
 fn collect_images(path: &Path, out: &mut Vec<PathBuf>) -> Result<(), Error> {
     if path.is_dir() {
-        let entries = std::fs::read_dir(path).map_err(|source| Error::Read { path: path.to_path_buf(), source })?;
+        let entries = std::fs::read_dir(path).map_err(|source| Error::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
         for entry in entries {
-            let entry = entry.map_err(|source| Error::Read { path: path.to_path_buf(), source })?;
+            let entry = entry.map_err(|source| Error::Read {
+                path: path.to_path_buf(),
+                source,
+            })?;
             collect_images(&entry.path(), out)?;
         }
     } else {
-        let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
         if matches!(ext.as_str(), "png" | "jpg" | "jpeg" | "webp") {
             out.push(path.to_path_buf());
         } else if !path.exists() {
-            return Err(Error::Read { path: path.to_path_buf(), source: std::io::ErrorKind::NotFound.into() });
+            return Err(Error::Read {
+                path: path.to_path_buf(),
+                source: std::io::ErrorKind::NotFound.into(),
+            });
         }
     }
     Ok(())
@@ -259,13 +346,23 @@ fn summary(rows: &[Row]) -> String {
             }
         }
     }
-    keys.sort_by(|a, b| (a.0 == "all").cmp(&(b.0 == "all")).then(a.0.cmp(&b.0)).then(a.2.cmp(&b.2)).then(a.1.cmp(b.1)));
+    keys.sort_by(|a, b| {
+        (a.0 == "all")
+            .cmp(&(b.0 == "all"))
+            .then(a.0.cmp(&b.0))
+            .then(a.2.cmp(&b.2))
+            .then(a.1.cmp(b.1))
+    });
     let mut out = String::from(
         "\n| class | method | paths | n | MSE | PSNR | SSIM | segments | SVG KB | seconds (median) | peak MB (max) |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for (class, method, budget) in keys {
-        let group: Vec<&Row> =
-            rows.iter().filter(|r| (class == "all" || r.class == class) && r.method == method && r.budget == budget).collect();
+        let group: Vec<&Row> = rows
+            .iter()
+            .filter(|r| {
+                (class == "all" || r.class == class) && r.method == method && r.budget == budget
+            })
+            .collect();
         let n = group.len() as f64;
         let mean = |f: &dyn Fn(&Row) -> f64| group.iter().map(|r| f(r)).sum::<f64>() / n;
         let mut seconds: Vec<f64> = group.iter().map(|r| r.seconds).collect();

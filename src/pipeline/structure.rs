@@ -5,10 +5,10 @@
 //! white and multiplied onto the albedo); its colours may exceed 1 up to
 //! [`StructureSettings::illumination_cap`].
 
-use image::GrayImage;
-
 use super::Error;
+use super::init::LayerGroups;
 use super::stage::{Canvas, Stage, StageContext};
+use crate::decompose::mask::Mask;
 use crate::optim::loss::{mse, overlap_penalty};
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
@@ -17,15 +17,31 @@ use crate::render::{Image, PathGrad};
 use crate::scene::{LayerKind, Path, Scene};
 
 /// One mask group from the initialisation: paths of one layer, painted in this order, each with
-/// the binary mask (0 / non-zero, working size) it was traced from. Masks within a group are
-/// (nearly) disjoint; nested masks go to later groups (LayerVec's back-to-front organisation).
+/// the mask (working size) it was traced from. Masks within a group are (nearly) disjoint;
+/// nested masks go to later groups (LayerVec's back-to-front organisation).
 #[derive(Clone, Debug)]
 pub struct MaskGroup {
     /// `Albedo`, or `Shade` for the illumination layer.
     pub layer: LayerKind,
     /// Indices into the layer's paths, one per mask.
     pub paths: Vec<usize>,
-    pub masks: Vec<GrayImage>,
+    pub masks: Vec<Mask>,
+}
+
+impl MaskGroup {
+    /// The groups of the init stage's layers, in paint order.
+    pub fn from_init(layers: &[LayerGroups]) -> Vec<MaskGroup> {
+        layers
+            .iter()
+            .flat_map(|layer| {
+                layer.groups.iter().map(|group| MaskGroup {
+                    layer: layer.layer,
+                    paths: group.iter().map(|m| m.path).collect(),
+                    masks: group.iter().map(|m| m.mask.clone()).collect(),
+                })
+            })
+            .collect()
+    }
 }
 
 /// Settings of the structure and reconstruction stages.
@@ -215,7 +231,7 @@ fn prepare_groups(
                     "mask group refers to missing path {index}"
                 )));
             }
-            if mask.width() as usize != w || mask.height() as usize != h {
+            if mask.width() != w || mask.height() != h {
                 return Err(Error::Params(
                     "mask size differs from the working size".into(),
                 ));
@@ -225,11 +241,10 @@ fn prepare_groups(
                 rng.range(0.2, 1.0),
                 rng.range(0.2, 1.0),
             ];
-            for (px, &m) in target.data.chunks_exact_mut(3).zip(mask.as_raw()) {
-                if m > 0 {
-                    for c in 0..3 {
-                        px[c] = (px[c] + color[c]).min(1.0);
-                    }
+            for i in mask.indices() {
+                for c in 0..3 {
+                    let v = &mut target.data[3 * i + c];
+                    *v = (*v + color[c]).min(1.0);
                 }
             }
             colors.push(color);
