@@ -17,12 +17,14 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     Vectorize(cli::vectorize::Args),
+    Eval(cli::eval::Args),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match &cli.command {
-        Command::Vectorize(args) => cli::vectorize::run(args),
+        Command::Vectorize(args) => cli::vectorize::run(args).map_err(|e| e.to_string()),
+        Command::Eval(args) => cli::eval::run(args).map_err(|e| e.to_string()),
     };
     if let Err(error) = result {
         eprintln!("error: {error}");

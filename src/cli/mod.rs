@@ -1,3 +1,4 @@
 //! The `covec` subcommands: each one's arguments and logic live in its own module.
 
+pub mod eval;
 pub mod vectorize;
