@@ -1,5 +1,9 @@
 //! The `covec` command line.
 
+mod cli;
+
+use std::process::ExitCode;
+
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -10,9 +14,14 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Run the HTTP vectorisation service (jobs API, progress, results; see api/openapi.yaml).
+    Serve(cli::serve::ServeArgs),
+}
 
-fn main() {
+fn main() -> ExitCode {
     let cli = Cli::parse();
-    match cli.command {}
+    match cli.command {
+        Command::Serve(args) => cli::serve::run(args),
+    }
 }
