@@ -20,9 +20,12 @@ pub struct ServeArgs {
     /// Directory for the job database and results (created if missing).
     #[arg(long, env = "COVEC_DATA_DIR", default_value = "covec-data")]
     data_dir: PathBuf,
-    /// Jobs run at once (and threads of the pipeline pool) [default: number of cores].
-    #[arg(long, env = "COVEC_WORKERS")]
-    workers: Option<usize>,
+    /// Jobs run at once; the pipeline threads are shared out among them.
+    #[arg(long, env = "COVEC_WORKERS", default_value_t = 1)]
+    workers: usize,
+    /// Pipeline threads in total [default: number of cores].
+    #[arg(long, env = "COVEC_THREADS")]
+    threads: Option<usize>,
     /// Most jobs waiting for a worker; more get 503 with Retry-After.
     #[arg(long, env = "COVEC_MAX_QUEUED", default_value_t = 64)]
     max_queued: usize,
@@ -73,7 +76,8 @@ impl ServeArgs {
             addr: self.addr,
             data_dir: self.data_dir,
             queue: QueueConfig {
-                workers: self.workers.unwrap_or(defaults.workers),
+                workers: self.workers,
+                threads: self.threads.unwrap_or(defaults.threads),
                 max_queued: self.max_queued,
                 job_time_limit: Duration::from_secs(self.job_time_limit),
                 retention: Duration::from_secs(self.retention),

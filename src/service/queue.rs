@@ -2,8 +2,11 @@
 //!
 //! Live job state is held in memory (one `watch` channel per job, so polls and SSE streams read
 //! it without touching the database) and written through to the [`Store`] on every status
-//! change. `workers` runner threads take queued jobs in order and run the pipeline inside a
-//! dedicated rayon pool of `workers` threads; the async runtime never runs pipeline work.
+//! change. `workers` runner threads take queued jobs in order; each runs its job's pipeline
+//! inside its own rayon pool (`threads / workers` threads), so the async runtime never runs
+//! pipeline work. One pool per job slot rather than one shared pool: in a shared pool a thread
+//! waiting inside one job's parallel loop may pick up another whole job (rayon work-stealing),
+//! stalling the first job, and its cancellation, until the second ends.
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::panic::AssertUnwindSafe;
@@ -24,12 +27,16 @@ use super::submit::{InputLimits, decode_inputs};
 use crate::pipeline::{self, Observer, Progress};
 use crate::render::Image;
 use crate::scene::LayerKind;
+use crate::svg;
 
 /// Queue and worker settings.
 #[derive(Clone, Debug)]
 pub struct QueueConfig {
-    /// Jobs run at once, and threads of the pipeline's rayon pool. Default: the number of cores.
+    /// Jobs run at once. Default 1 (one job uses every thread).
     pub workers: usize,
+    /// Pipeline threads in total, shared out among the workers (at least one each).
+    /// Default: the number of cores.
+    pub threads: usize,
     /// Most jobs waiting; beyond it `POST /v1/jobs` answers 503 with `Retry-After`. Default 64.
     pub max_queued: usize,
     /// Wall-clock limit of one run; then the job fails with code `time-limit`. Default 600 s.
@@ -41,7 +48,8 @@ pub struct QueueConfig {
 impl Default for QueueConfig {
     fn default() -> Self {
         Self {
-            workers: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            workers: 1,
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             max_queued: 64,
             job_time_limit: Duration::from_secs(600),
             retention: Duration::from_secs(24 * 3600),
@@ -99,7 +107,6 @@ pub struct Queue {
     limits: InputLimits,
     store: Arc<Store>,
     metrics: Arc<Metrics>,
-    pool: rayon::ThreadPool,
     runtime: tokio::runtime::Handle,
     state: Mutex<State>,
     /// Signalled when a job is queued, a job ends, or draining starts.
@@ -141,10 +148,7 @@ impl Queue {
         metrics: Arc<Metrics>,
     ) -> Result<Arc<Self>, QueueError> {
         let workers = config.workers.max(1);
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(workers)
-            .thread_name(|index| format!("covec-pipeline-{index}"))
-            .build()?;
+        let threads_per_job = (config.threads / workers).max(1);
         let mut state = State {
             jobs: BTreeMap::new(),
             pending: VecDeque::new(),
@@ -176,7 +180,6 @@ impl Queue {
             limits,
             store,
             metrics,
-            pool,
             runtime: tokio::runtime::Handle::current(),
             state: Mutex::new(state),
             changed: Condvar::new(),
@@ -184,11 +187,15 @@ impl Queue {
             runners: Mutex::new(Vec::new()),
         });
         for index in 0..workers {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads_per_job)
+                .thread_name(move |thread| format!("covec-pipeline-{index}-{thread}"))
+                .build()?;
             let runner = Arc::clone(&queue);
             queue.runners_alive.fetch_add(1, Ordering::SeqCst);
             let handle = std::thread::Builder::new()
                 .name(format!("covec-job-{index}"))
-                .spawn(move || runner.run_jobs())
+                .spawn(move || runner.run_jobs(&pool))
                 .inspect_err(|_| {
                     queue.runners_alive.fetch_sub(1, Ordering::SeqCst);
                 })?;
@@ -467,7 +474,7 @@ impl Queue {
     }
 
     /// A runner thread: takes queued jobs in order until draining.
-    fn run_jobs(self: Arc<Self>) {
+    fn run_jobs(self: Arc<Self>, pool: &rayon::ThreadPool) {
         loop {
             let mut state = lock(&self.state);
             while state.pending.is_empty() && !state.draining {
@@ -482,14 +489,14 @@ impl Queue {
             };
             state.running += 1;
             drop(state);
-            self.run_job(&entry);
+            self.run_job(&entry, pool);
             lock(&self.state).running -= 1;
             self.changed.notify_all();
         }
         self.runners_alive.fetch_sub(1, Ordering::SeqCst);
     }
 
-    fn run_job(&self, entry: &Arc<JobEntry>) {
+    fn run_job(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) {
         let _span = info_span!("job", job_id = %entry.id).entered();
         let started = Instant::now();
         entry.record.send_modify(|record| {
@@ -500,7 +507,7 @@ impl Queue {
             warn!("saving running state: {error}");
         }
         info!("started");
-        let outcome = self.execute(entry);
+        let outcome = self.execute(entry, pool);
         if entry.deleted.load(Ordering::SeqCst) {
             let _ = self.store.remove_artefacts(&entry.id);
             let _ = self.store.delete(&entry.id);
@@ -567,7 +574,7 @@ impl Queue {
         self.store.save(&entry.snapshot()).map_err(internal)
     }
 
-    fn execute(&self, entry: &Arc<JobEntry>) -> Outcome {
+    fn execute(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) -> Outcome {
         let record = entry.snapshot();
         let read = |name: &str| self.store.read_artefact(&entry.id, name);
         let inputs = (|| {
@@ -624,8 +631,7 @@ impl Queue {
             entry,
         };
         let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
-            self.pool
-                .install(|| pipeline::run(&inputs, &record.params, &observer, &entry.cancel))
+            pool.install(|| pipeline::run(&inputs, &record.params, &observer, &entry.cancel))
         }));
         deadline.abort();
         match result {
@@ -659,8 +665,9 @@ impl Queue {
 
     /// The layered SVG, one SVG per layer and the JSON scene; `result.svg` is written last.
     fn write_results(&self, id: &str, scene: &crate::scene::Scene) -> Result<(), StoreError> {
+        let options = svg::SvgOptions::default();
         for kind in [LayerKind::Albedo, LayerKind::Shade, LayerKind::Light] {
-            let svg = crate::svg::layer_svg(scene, kind);
+            let svg = svg::layer_to_svg(scene, kind, &options);
             self.store.write_artefact(
                 id,
                 &format!("layers/{}.svg", kind.name()),
@@ -670,7 +677,7 @@ impl Queue {
         let json = serde_json::to_vec_pretty(scene).expect("a scene always serialises");
         self.store.write_artefact(id, "scene.json", &json)?;
         self.store
-            .write_artefact(id, "result.svg", crate::svg::scene_svg(scene).as_bytes())
+            .write_artefact(id, "result.svg", svg::to_svg(scene, &options).as_bytes())
     }
 }
 
