@@ -13,7 +13,10 @@ pub struct Limits {
 
 impl Default for Limits {
     fn default() -> Self {
-        Self { max_pixels: 40_000_000, max_masks: 256 }
+        Self {
+            max_pixels: 40_000_000,
+            max_masks: 256,
+        }
     }
 }
 

@@ -7,7 +7,11 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "covec", version, about = "Photographs to layered, editable SVG (COVec)")]
+#[command(
+    name = "covec",
+    version,
+    about = "Photographs to layered, editable SVG (COVec)"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

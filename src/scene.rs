@@ -46,14 +46,26 @@ impl Path {
             let b = vertices[(i + 1) % vertices.len()];
             points.push(a);
             points.push(Point::new(a.x + (b.x - a.x) / 3.0, a.y + (b.y - a.y) / 3.0));
-            points.push(Point::new(a.x + 2.0 * (b.x - a.x) / 3.0, a.y + 2.0 * (b.y - a.y) / 3.0));
+            points.push(Point::new(
+                a.x + 2.0 * (b.x - a.x) / 3.0,
+                a.y + 2.0 * (b.y - a.y) / 3.0,
+            ));
         }
-        Some(Self { points, color, opacity })
+        Some(Self {
+            points,
+            color,
+            opacity,
+        })
     }
 
     /// A rectangle covering `[x0, x1] × [y0, y1]`.
     pub fn rect(x0: f32, y0: f32, x1: f32, y1: f32, color: [f32; 3], opacity: f32) -> Self {
-        let corners = [Point::new(x0, y0), Point::new(x1, y0), Point::new(x1, y1), Point::new(x0, y1)];
+        let corners = [
+            Point::new(x0, y0),
+            Point::new(x1, y0),
+            Point::new(x1, y1),
+            Point::new(x0, y1),
+        ];
         Self::from_polygon(&corners, color, opacity).expect("four corners")
     }
 
@@ -65,7 +77,12 @@ impl Path {
     /// The four control points of segment `k`.
     pub fn segment(&self, k: usize) -> [Point; 4] {
         let n = self.points.len();
-        [self.points[3 * k], self.points[3 * k + 1], self.points[3 * k + 2], self.points[(3 * k + 3) % n]]
+        [
+            self.points[3 * k],
+            self.points[3 * k + 1],
+            self.points[3 * k + 2],
+            self.points[(3 * k + 3) % n],
+        ]
     }
 }
 
@@ -158,12 +175,19 @@ impl Scene {
 
     /// Total number of paths over all layers.
     pub fn path_count(&self) -> usize {
-        LayerKind::ALL.iter().map(|&k| self.layer(k).paths.len()).sum()
+        LayerKind::ALL
+            .iter()
+            .map(|&k| self.layer(k).paths.len())
+            .sum()
     }
 
     /// Total number of cubic segments over all layers.
     pub fn segment_count(&self) -> usize {
-        LayerKind::ALL.iter().flat_map(|&k| &self.layer(k).paths).map(Path::segment_count).sum()
+        LayerKind::ALL
+            .iter()
+            .flat_map(|&k| &self.layer(k).paths)
+            .map(Path::segment_count)
+            .sum()
     }
 
     /// Looks a path up by its id (see [`PathId`]).
@@ -208,7 +232,13 @@ mod tests {
     #[test]
     fn path_ids_round_trip() {
         let id: PathId = "shade-12".parse().unwrap();
-        assert_eq!(id, PathId { layer: LayerKind::Shade, index: 12 });
+        assert_eq!(
+            id,
+            PathId {
+                layer: LayerKind::Shade,
+                index: 12
+            }
+        );
         assert_eq!(id.to_string(), "shade-12");
         assert!("halo-1".parse::<PathId>().is_err());
         assert!("albedo-x".parse::<PathId>().is_err());
@@ -218,7 +248,15 @@ mod tests {
     fn polygon_edges_become_straight_cubics() {
         let p = Path::rect(0.0, 0.0, 3.0, 6.0, [1.0; 3], 1.0);
         assert_eq!(p.segment_count(), 4);
-        assert_eq!(p.segment(0), [Point::new(0.0, 0.0), Point::new(1.0, 0.0), Point::new(2.0, 0.0), Point::new(3.0, 0.0)]);
+        assert_eq!(
+            p.segment(0),
+            [
+                Point::new(0.0, 0.0),
+                Point::new(1.0, 0.0),
+                Point::new(2.0, 0.0),
+                Point::new(3.0, 0.0)
+            ]
+        );
         assert_eq!(p.segment(3)[3], Point::new(0.0, 0.0));
     }
 }

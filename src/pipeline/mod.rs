@@ -43,7 +43,13 @@ pub struct Params {
 
 impl Default for Params {
     fn default() -> Self {
-        Self { paths: 64, mode: Mode::Auto, max_size: 512, seed: 0, iterations: Iterations::default() }
+        Self {
+            paths: 64,
+            mode: Mode::Auto,
+            max_size: 512,
+            seed: 0,
+            iterations: Iterations::default(),
+        }
     }
 }
 
@@ -65,7 +71,13 @@ pub struct Iterations {
 
 impl Default for Iterations {
     fn default() -> Self {
-        Self { structure: 50, reconstruction: 50, refine_rounds: 5, refine: 100, polish: 50 }
+        Self {
+            structure: 50,
+            reconstruction: 50,
+            refine_rounds: 5,
+            refine: 100,
+            polish: 50,
+        }
     }
 }
 
@@ -135,7 +147,12 @@ pub enum Error {
 
 /// Runs the whole pipeline. CPU-bound: call it from a worker thread (it uses the current rayon
 /// pool inside), never from an async task.
-pub fn run(inputs: &Inputs, params: &Params, observer: &dyn Observer, cancel: &AtomicBool) -> Result<Output, Error> {
+pub fn run(
+    inputs: &Inputs,
+    params: &Params,
+    observer: &dyn Observer,
+    cancel: &AtomicBool,
+) -> Result<Output, Error> {
     let _ = (inputs, params, observer, cancel);
     todo!("pipeline::run: initialisation lands with issue 3, optimisation with issue 4")
 }

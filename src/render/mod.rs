@@ -26,7 +26,11 @@ impl Image {
         for _ in 0..width * height {
             data.extend_from_slice(&color);
         }
-        Self { width, height, data }
+        Self {
+            width,
+            height,
+            data,
+        }
     }
 
     pub fn pixel(&self, x: usize, y: usize) -> [f32; 3] {
@@ -48,7 +52,11 @@ impl PathGrad {
     pub fn zeros_like(paths: &[Path]) -> Vec<PathGrad> {
         paths
             .iter()
-            .map(|p| PathGrad { points: vec![Point::default(); p.points.len()], color: [0.0; 3], opacity: 0.0 })
+            .map(|p| PathGrad {
+                points: vec![Point::default(); p.points.len()],
+                color: [0.0; 3],
+                opacity: 0.0,
+            })
             .collect()
     }
 }
@@ -63,14 +71,27 @@ impl Rasterizer {
     }
 
     /// Renders `paths` over `base` into `out`, which is resized to `width × height`.
-    pub fn render(&mut self, paths: &[Path], base: [f32; 3], width: usize, height: usize, out: &mut Image) {
+    pub fn render(
+        &mut self,
+        paths: &[Path],
+        base: [f32; 3],
+        width: usize,
+        height: usize,
+        out: &mut Image,
+    ) {
         let _ = (paths, base);
         *out = Image::filled(width, height, base);
     }
 
     /// Adds dLoss/dparams of the render of `paths` over `base` into `grads`, given
     /// `d_out` = dLoss/dPixel of that render (same size).
-    pub fn backward(&mut self, paths: &[Path], base: [f32; 3], d_out: &Image, grads: &mut [PathGrad]) {
+    pub fn backward(
+        &mut self,
+        paths: &[Path],
+        base: [f32; 3],
+        d_out: &Image,
+        grads: &mut [PathGrad],
+    ) {
         let _ = (paths, base, d_out, grads);
     }
 }
