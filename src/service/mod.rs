@@ -300,3 +300,74 @@ async fn stop_signal() {
     #[cfg(not(unix))]
     let _ = interrupt.await;
 }
+
+#[cfg(test)]
+mod tests {
+    use axum::body::Body;
+    use axum::http::{Request, StatusCode};
+    use tower::ServiceExt;
+
+    use super::*;
+
+    fn state(name: &str) -> (AppState, PathBuf) {
+        let data_dir =
+            std::env::temp_dir().join(format!("covec-unit-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&data_dir);
+        let config = Config {
+            data_dir: data_dir.clone(),
+            ..Config::default()
+        };
+        (AppState::open(&config).unwrap(), data_dir)
+    }
+
+    async fn call(app: Router, method: &str, uri: &str) -> (StatusCode, String, serde_json::Value) {
+        let request = Request::builder()
+            .method(method)
+            .uri(uri)
+            .body(Body::empty())
+            .unwrap();
+        let response = app.oneshot(request).await.unwrap();
+        let status = response.status();
+        let content_type = response.headers()["content-type"]
+            .to_str()
+            .unwrap()
+            .to_owned();
+        let body = axum::body::to_bytes(response.into_body(), 1 << 20)
+            .await
+            .unwrap();
+        (status, content_type, serde_json::from_slice(&body).unwrap())
+    }
+
+    #[tokio::test(flavor = "multi_thread")]
+    async fn routes_answer_in_process() {
+        let (state, data_dir) = state("routes");
+        let app = app(state);
+        let (status, _, body) = call(app.clone(), "GET", "/healthz").await;
+        assert_eq!(
+            (status, body["status"].as_str()),
+            (StatusCode::OK, Some("ok"))
+        );
+        let (status, _, body) = call(app.clone(), "GET", "/readyz").await;
+        assert_eq!(
+            (status, body["status"].as_str()),
+            (StatusCode::OK, Some("ready"))
+        );
+        let (status, content_type, body) = call(app.clone(), "GET", "/v1/jobs/nope").await;
+        assert_eq!(
+            (status, content_type.as_str()),
+            (StatusCode::BAD_REQUEST, error::PROBLEM_JSON)
+        );
+        assert_eq!(body["code"], "malformed-job-id");
+        let (status, _, body) = call(app.clone(), "GET", "/").await;
+        assert_eq!(
+            (status, body["code"].as_str()),
+            (StatusCode::NOT_FOUND, Some("route-not-found"))
+        );
+        let (status, _, body) = call(app, "DELETE", "/v1/jobs").await;
+        assert_eq!(
+            (status, body["code"].as_str()),
+            (StatusCode::METHOD_NOT_ALLOWED, Some("method-not-allowed"))
+        );
+        let _ = std::fs::remove_dir_all(data_dir);
+    }
+}
