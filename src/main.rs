@@ -1,10 +1,9 @@
 //! The `covec` command line.
 
-mod cli;
-
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+mod cli;
 
 #[derive(Parser)]
 #[command(
@@ -19,13 +18,20 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    Vectorize(cli::vectorize::Args),
     /// Run the HTTP vectorisation service (jobs API, progress, results; see api/openapi.yaml).
     Serve(cli::serve::ServeArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    match cli.command {
-        Command::Serve(args) => cli::serve::run(args),
+    let result = match cli.command {
+        Command::Vectorize(args) => cli::vectorize::run(&args),
+        Command::Serve(args) => return cli::serve::run(args),
+    };
+    if let Err(error) = result {
+        eprintln!("error: {error}");
+        return ExitCode::FAILURE;
     }
+    ExitCode::SUCCESS
 }

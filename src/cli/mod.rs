@@ -1,3 +1,4 @@
-//! One module per subcommand: its arguments and its logic.
+//! The `covec` subcommands: each one's arguments and logic live in its own module.
 
 pub mod serve;
+pub mod vectorize;

@@ -3,8 +3,6 @@
 //! Every check that can fail on the client's input runs here, before a job exists, so bad input
 //! is a 4xx on `POST /v1/jobs` rather than a failed job.
 
-use std::io::Cursor;
-
 use axum::body::Bytes;
 use axum::extract::{FromRequest, Multipart, Request};
 use axum::http::header;
@@ -237,6 +235,10 @@ fn parse_params(value: serde_json::Value) -> Result<Params, ApiError> {
 
 /// Range checks beyond what the types enforce.
 fn check_params(params: &Params, limits: &InputLimits) -> Result<(), ApiError> {
+    params.validate().map_err(|error| match error {
+        crate::pipeline::Error::Params(detail) => ApiError::InvalidParams(detail),
+        other => ApiError::InvalidParams(other.to_string()),
+    })?;
     if !(8..=limits.max_paths).contains(&params.paths) {
         return Err(ApiError::InvalidParams(format!(
             "`paths` must be in 8..={}, not {}",
@@ -304,21 +306,23 @@ pub fn decode_inputs(
             "send either `mask` fields or one `labels` map, not both".into(),
         ));
     }
-    let image = decode("image", image, limits)?;
+    let decode_limits = imageio::Limits {
+        max_pixels: limits.max_pixels,
+        max_masks: limits.max_masks,
+    };
+    let image = imageio::decode_image(image, &decode_limits).map_err(input_error("image"))?;
     let (width, height) = (image.width(), image.height());
-    let same_size = |what: String, other: &image::DynamicImage| {
-        if (other.width(), other.height()) == (width, height) {
+    let same_size = |what: String, (w, h): (u32, u32)| {
+        if (w, h) == (width, height) {
             Ok(())
         } else {
             Err(ApiError::InvalidInput(format!(
-                "{what} is {}×{} but the image is {width}×{height}",
-                other.width(),
-                other.height()
+                "{what} is {w}×{h} but the image is {width}×{height}"
             )))
         }
     };
     let albedo = albedo
-        .map(|bytes| decode("albedo", bytes, limits))
+        .map(|bytes| imageio::decode_image(bytes, &decode_limits).map_err(input_error("albedo")))
         .transpose()?;
     if let Some(albedo) = &albedo {
         let (aw, ah) = (f64::from(albedo.width()), f64::from(albedo.height()));
@@ -330,20 +334,20 @@ pub fn decode_inputs(
         }
     }
     let masks = if let Some(labels) = labels {
-        let labels = decode("label map", labels, limits)?;
-        same_size("the label map".into(), &labels)?;
+        let labels =
+            imageio::decode_labels(labels, &decode_limits).map_err(input_error("label map"))?;
+        same_size("the label map".into(), (labels.width(), labels.height()))?;
         Masks::Labels(labels)
     } else if masks.is_empty() {
         Masks::None
     } else {
         let mut binary = Vec::with_capacity(masks.len());
         for (index, bytes) in masks.iter().enumerate() {
-            let mask = decode("mask", bytes, limits)?;
-            same_size(format!("mask {index}"), &mask)?;
-            let mut gray = mask.to_luma8();
-            gray.pixels_mut()
-                .for_each(|pixel| pixel.0[0] = if pixel.0[0] >= 128 { 255 } else { 0 });
-            binary.push(gray);
+            let name = format!("mask {index}");
+            let mask =
+                imageio::decode_mask(&name, bytes, &decode_limits).map_err(input_error("mask"))?;
+            same_size(name, mask.dimensions())?;
+            binary.push(mask);
         }
         Masks::Binary(binary)
     };
@@ -354,29 +358,20 @@ pub fn decode_inputs(
     })
 }
 
-/// Reads the dimensions from the header first, so an oversized image is refused before decoding.
-fn decode(
-    what: &'static str,
-    bytes: &[u8],
-    limits: &InputLimits,
-) -> Result<image::DynamicImage, ApiError> {
-    let undecodable =
-        |error: &dyn std::fmt::Display| ApiError::UndecodableImage(what, error.to_string());
-    let (width, height) = image::ImageReader::new(Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|error| undecodable(&error))?
-        .into_dimensions()
-        .map_err(|error| undecodable(&error))?;
-    let pixels = u64::from(width) * u64::from(height);
-    if pixels > limits.max_pixels {
-        return Err(ApiError::TooManyPixels {
-            limit: limits.max_pixels,
+/// Maps a decoding refusal to its problem: limits are 413, the rest 422.
+fn input_error(what: &'static str) -> impl Fn(imageio::InputError) -> ApiError {
+    move |error| match error {
+        imageio::InputError::Undecodable(detail) => ApiError::UndecodableImage(what, detail),
+        imageio::InputError::TooManyPixels { pixels, max, .. } => ApiError::TooManyPixels {
+            limit: max,
             actual: pixels,
-        });
+        },
+        imageio::InputError::TooManyMasks { count, max } => ApiError::TooManyMasks {
+            limit: max as u64,
+            actual: count as u64,
+        },
+        other @ (imageio::InputError::Empty { .. } | imageio::InputError::NonBinaryMask { .. }) => {
+            ApiError::InvalidInput(format!("{what}: {other}"))
+        }
     }
-    let decode_limits = imageio::Limits {
-        max_pixels: limits.max_pixels,
-        max_masks: limits.max_masks,
-    };
-    imageio::decode_image(bytes, &decode_limits).map_err(|error| undecodable(&error))
 }

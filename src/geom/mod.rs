@@ -1,0 +1,3 @@
+//! Plane geometry on canvas pixels: contour tracing and polygon simplification.
+
+pub mod contour;
