@@ -12,5 +12,6 @@ pub mod optim;
 pub mod pipeline;
 pub mod render;
 pub mod scene;
+pub mod service;
 pub mod svg;
 pub mod synth;
