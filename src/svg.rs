@@ -114,6 +114,20 @@ pub fn hex_colour(colour: [f32; 3]) -> String {
     format!("#{r:02x}{g:02x}{b:02x}")
 }
 
+/// The colour of `#rrggbb` (case-insensitive), or `None`.
+pub fn parse_hex_colour(text: &str) -> Option<[f32; 3]> {
+    let hex = text.strip_prefix('#')?;
+    if hex.len() != 6 || !hex.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return None;
+    }
+    let channel = |i: usize| {
+        u8::from_str_radix(&hex[i..i + 2], 16)
+            .ok()
+            .map(|v| f32::from(v) / 255.0)
+    };
+    Some([channel(0)?, channel(2)?, channel(4)?])
+}
+
 /// A number with at most `decimals` decimals, trailing zeros dropped, no `-0`.
 fn number(v: f32, decimals: usize) -> String {
     let v = if v.is_finite() { v } else { 0.0 };

@@ -1,5 +1,6 @@
 //! The `covec` subcommands: each one's arguments and logic live in its own module.
 
+pub mod edit;
 pub mod eval;
 pub mod serve;
 pub mod vectorize;

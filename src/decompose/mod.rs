@@ -202,7 +202,8 @@ fn check_aspect(what: &str, w: u32, h: u32, image_w: u32, image_h: u32) -> Resul
     Ok(())
 }
 
-fn resize_rgb(image: &DynamicImage, w: u32, h: u32) -> Image {
+/// The image as f32 RGB at `w × h` (unchanged when it already has that size).
+pub fn resize_rgb(image: &DynamicImage, w: u32, h: u32) -> Image {
     let rgb = to_rgb_image(image);
     if (rgb.width, rgb.height) == (w as usize, h as usize) {
         return rgb;

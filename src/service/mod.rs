@@ -9,6 +9,7 @@
 //! [`endpoints`], which a test compares with the OpenAPI document.
 
 mod auth;
+mod edits;
 pub mod error;
 mod jobs;
 pub mod model;
@@ -156,11 +157,12 @@ where
     }
 }
 
-/// Every route of the service. Issue 6 adds `POST /v1/jobs/{id}/edits` as an `edits` module
-/// here; issue 7 the static web page at `/` (today `/` is a 404 problem).
+/// Every route of the service. Issue 7 adds the static web page at `/` (today `/` is a 404
+/// problem).
 pub fn endpoints() -> Vec<Endpoint> {
     let mut all = jobs::endpoints();
     all.extend(results::endpoints());
+    all.extend(edits::endpoints());
     all.extend(ops::endpoints());
     all
 }

@@ -23,9 +23,9 @@ pub fn endpoints() -> Vec<Endpoint> {
     ]
 }
 
-const SVG: &str = "image/svg+xml";
+pub(super) const SVG: &str = "image/svg+xml";
 
-fn require_success(record: &JobRecord) -> Result<(), ApiError> {
+pub(super) fn require_success(record: &JobRecord) -> Result<(), ApiError> {
     if record.data_removed {
         return Err(ApiError::DataRemoved(record.id.clone()));
     }
@@ -36,7 +36,7 @@ fn require_success(record: &JobRecord) -> Result<(), ApiError> {
 }
 
 /// Reads a stored artefact off the async workers.
-async fn artefact(
+pub(super) async fn artefact(
     state: &AppState,
     id: &str,
     name: String,

@@ -1,0 +1,445 @@
+//! Edits of a finished job: recolour albedo paths while the shade and light layers keep the
+//! lighting (issue 6). An edit is cheap (no optimisation), so it runs within the request, on
+//! the blocking pool, and is stored under the job: `edits/<edit id>/{edit.json, scene.json,
+//! result.svg, preview.png}`. An edit may build on an earlier edit (`base`), which gives clients
+//! an undo history for free.
+
+use axum::extract::{FromRequest, Multipart, Path, Request, State};
+use axum::http::{HeaderValue, Method, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::{Extension, Json};
+use serde::{Deserialize, Serialize};
+
+use super::auth::Owner;
+use super::error::ApiError;
+use super::jobs::find;
+use super::results::{SVG, artefact, require_success};
+use super::{AppState, Endpoint, endpoint};
+use crate::decompose::resize_rgb;
+use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
+use crate::scene::{PathId, Point, Scene};
+use crate::{imageio, pipeline, svg};
+
+pub fn endpoints() -> Vec<Endpoint> {
+    vec![
+        endpoint(Method::POST, "/v1/jobs/{id}/edits", create),
+        endpoint(Method::GET, "/v1/jobs/{id}/edits/{edit_id}", get),
+        endpoint(Method::GET, "/v1/jobs/{id}/edits/{edit_id}/svg", edit_svg),
+        endpoint(
+            Method::GET,
+            "/v1/jobs/{id}/edits/{edit_id}/scene.json",
+            edit_scene,
+        ),
+        endpoint(
+            Method::GET,
+            "/v1/jobs/{id}/edits/{edit_id}/preview.png",
+            edit_preview,
+        ),
+    ]
+}
+
+/// Edit id: `edit_` + a UUIDv7 in hex.
+fn new_edit_id() -> String {
+    format!("edit_{}", uuid::Uuid::now_v7().simple())
+}
+
+fn check_edit_id(id: &str) -> Result<(), ApiError> {
+    let valid = id.strip_prefix("edit_").is_some_and(|hex| {
+        hex.len() == 32
+            && hex
+                .bytes()
+                .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+    });
+    if valid {
+        Ok(())
+    } else {
+        Err(ApiError::BadRequest(format!(
+            "`{id}` is not an edit id (expected `edit_` followed by 32 lowercase hex digits)"
+        )))
+    }
+}
+
+/// JSON form: direct colour changes.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ColorEdit {
+    /// Apply on top of this earlier edit instead of the job's scene.
+    #[serde(default)]
+    base: Option<String>,
+    changes: Vec<ChangeRequest>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ChangeRequest {
+    /// A path id such as `albedo-3`; or give `at`.
+    #[serde(default)]
+    path: Option<String>,
+    /// A point in viewBox coordinates: the albedo path under it is recoloured.
+    #[serde(default)]
+    at: Option<Point>,
+    /// `#rrggbb`.
+    color: String,
+    #[serde(default)]
+    opacity: Option<f32>,
+}
+
+/// What a stored edit says about itself.
+#[derive(Serialize, Deserialize)]
+struct EditRecord {
+    id: String,
+    job_id: String,
+    base: Option<String>,
+    kind: EditKind,
+    changed: Vec<ChangedView>,
+    created_at: String,
+    urls: EditUrls,
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy)]
+#[serde(rename_all = "lowercase")]
+enum EditKind {
+    Colors,
+    Reference,
+}
+
+#[derive(Serialize, Deserialize)]
+struct ChangedView {
+    path: String,
+    old_color: String,
+    new_color: String,
+    old_opacity: f32,
+    new_opacity: f32,
+}
+
+#[derive(Serialize, Deserialize)]
+struct EditUrls {
+    #[serde(rename = "self")]
+    this: String,
+    svg: String,
+    scene: String,
+    preview: String,
+}
+
+/// The request as read, before the scene is loaded.
+enum EditRequest {
+    Colors(Vec<ColorChange>),
+    Reference {
+        image: axum::body::Bytes,
+        params: ReferenceParams,
+    },
+}
+
+async fn create(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+    request: Request,
+) -> Result<Response, ApiError> {
+    let entry = find(&state, &owner, &id)?;
+    require_success(&entry.snapshot())?;
+    let content_type = request
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_owned();
+    let media_type = content_type
+        .split(';')
+        .next()
+        .unwrap_or("")
+        .trim()
+        .to_ascii_lowercase();
+    let (base, edit_request) = match media_type.as_str() {
+        "application/json" => read_color_edit(request).await?,
+        "multipart/form-data" => read_reference_edit(request).await?,
+        _ => return Err(ApiError::UnsupportedMediaType(content_type)),
+    };
+    if let Some(base) = &base {
+        check_edit_id(base)?;
+    }
+
+    let queue = state.queue.clone();
+    let max_pixels = state.limits.max_pixels;
+    let job_id = id.clone();
+    let record = tokio::task::spawn_blocking(move || {
+        let store = queue.store();
+        let read = |name: &str| {
+            store
+                .read_artefact(&job_id, name)
+                .map_err(|e| ApiError::Internal(e.to_string()))
+        };
+        let scene_name = match &base {
+            Some(base) => format!("edits/{base}/scene.json"),
+            None => "scene.json".to_owned(),
+        };
+        let scene_bytes = read(&scene_name)?.ok_or_else(|| ApiError::ResultNotFound(scene_name.clone()))?;
+        let scene: Scene = serde_json::from_slice(&scene_bytes)
+            .map_err(|e| ApiError::Internal(format!("stored scene: {e}")))?;
+        let (kind, edit) = match edit_request {
+            EditRequest::Colors(changes) => (EditKind::Colors, edit::recolor_paths(&scene, &changes)),
+            EditRequest::Reference { image, params } => {
+                let limits = imageio::Limits { max_pixels, ..imageio::Limits::default() };
+                let original = imageio::decode_image(
+                    &read("input/image")?.ok_or_else(|| ApiError::ResultNotFound("input/image".into()))?,
+                    &limits,
+                )
+                .map_err(|e| ApiError::Internal(format!("stored input: {e}")))?;
+                let reference = imageio::decode_image(&image, &limits)
+                    .map_err(|e| ApiError::UndecodableImage("reference image", e.to_string()))?;
+                if (reference.width(), reference.height()) != (original.width(), original.height()) {
+                    return Err(ApiError::InvalidInput(format!(
+                        "the reference image is {}×{}; it must be the size of the job's image, {}×{}",
+                        reference.width(),
+                        reference.height(),
+                        original.width(),
+                        original.height()
+                    )));
+                }
+                let (w, h) = (scene.width, scene.height);
+                let edit = edit::recolor_by_reference(
+                    &scene,
+                    &resize_rgb(&original, w, h),
+                    &resize_rgb(&reference, w, h),
+                    &params,
+                );
+                (EditKind::Reference, edit)
+            }
+        };
+        let edit = edit.map_err(|e| ApiError::InvalidInput(e.to_string()))?;
+        store_edit(&queue, &job_id, base, kind, &edit)
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))??;
+
+    let mut response = (StatusCode::CREATED, Json(&record)).into_response();
+    if let Ok(location) = HeaderValue::from_str(&record.urls.this) {
+        response.headers_mut().insert(header::LOCATION, location);
+    }
+    Ok(response)
+}
+
+async fn read_color_edit(request: Request) -> Result<(Option<String>, EditRequest), ApiError> {
+    let Json(body) = Json::<ColorEdit>::from_request(request, &())
+        .await
+        .map_err(|rejection| ApiError::BadRequest(rejection.body_text()))?;
+    if body.changes.is_empty() {
+        return Err(ApiError::BadRequest("`changes` is empty".into()));
+    }
+    let changes = body
+        .changes
+        .into_iter()
+        .map(|change| {
+            let color = svg::parse_hex_colour(&change.color).ok_or_else(|| {
+                ApiError::InvalidInput(format!(
+                    "`{}` is not a colour (expected #rrggbb)",
+                    change.color
+                ))
+            })?;
+            let target = match (change.path, change.at) {
+                (Some(path), None) => Target::Path(path.parse::<PathId>().map_err(|()| {
+                    ApiError::InvalidInput(format!("`{path}` is not a path id (e.g. albedo-3)"))
+                })?),
+                (None, Some(point)) => Target::AlbedoAt(point),
+                _ => {
+                    return Err(ApiError::BadRequest(
+                        "each change needs exactly one of `path` and `at`".into(),
+                    ));
+                }
+            };
+            Ok(ColorChange {
+                target,
+                color,
+                opacity: change.opacity,
+            })
+        })
+        .collect::<Result<_, ApiError>>()?;
+    Ok((body.base, EditRequest::Colors(changes)))
+}
+
+async fn read_reference_edit(request: Request) -> Result<(Option<String>, EditRequest), ApiError> {
+    let mut multipart = Multipart::from_request(request, &())
+        .await
+        .map_err(|rejection| ApiError::BadRequest(rejection.body_text()))?;
+    let (mut reference, mut params, mut k, mut base) = (None, None, None, None);
+    while let Some(field) = multipart
+        .next_field()
+        .await
+        .map_err(|e| ApiError::BadRequest(e.body_text()))?
+    {
+        let name = field.name().unwrap_or("").to_owned();
+        let bytes = field
+            .bytes()
+            .await
+            .map_err(|e| ApiError::BadRequest(e.body_text()))?;
+        let text = || String::from_utf8_lossy(&bytes).trim().to_owned();
+        match name.as_str() {
+            "reference" => reference = Some(bytes.clone()),
+            "params" => {
+                params = Some(
+                    serde_json::from_slice::<ReferenceParams>(&bytes).map_err(|e| {
+                        ApiError::InvalidParams(format!(
+                            "`params` (k, tau, gamma, delta, epsilon): {e}"
+                        ))
+                    })?,
+                )
+            }
+            "k" => {
+                k = Some(text().parse::<usize>().map_err(|_| {
+                    ApiError::InvalidParams(format!(
+                        "`k` must be a positive integer, not `{}`",
+                        text()
+                    ))
+                })?)
+            }
+            "base" => base = Some(text()),
+            other => {
+                return Err(ApiError::BadRequest(format!(
+                    "unknown form field `{other}`"
+                )));
+            }
+        }
+    }
+    let image = reference
+        .ok_or_else(|| ApiError::BadRequest("the form field `reference` is required".into()))?;
+    let mut params = params.unwrap_or_default();
+    if let Some(k) = k {
+        params.k = k;
+    }
+    if params.k == 0 {
+        return Err(ApiError::InvalidParams("`k` must be at least 1".into()));
+    }
+    Ok((base, EditRequest::Reference { image, params }))
+}
+
+/// Writes the edit's scene, SVG and preview, then its record last (the record is what makes
+/// an edit visible, so a crash never exposes a half-written edit).
+fn store_edit(
+    queue: &super::queue::Queue,
+    job_id: &str,
+    base: Option<String>,
+    kind: EditKind,
+    edit: &Edit,
+) -> Result<EditRecord, ApiError> {
+    let id = new_edit_id();
+    let prefix = format!("/v1/jobs/{job_id}/edits/{id}");
+    let record = EditRecord {
+        id: id.clone(),
+        job_id: job_id.to_owned(),
+        base,
+        kind,
+        changed: edit
+            .changed
+            .iter()
+            .map(|c| ChangedView {
+                path: c.path.to_string(),
+                old_color: svg::hex_colour(c.old_color),
+                new_color: svg::hex_colour(c.new_color),
+                old_opacity: c.old_opacity,
+                new_opacity: c.new_opacity,
+            })
+            .collect(),
+        created_at: super::model::rfc3339(super::model::now_ms()),
+        urls: EditUrls {
+            this: prefix.clone(),
+            svg: format!("{prefix}/svg"),
+            scene: format!("{prefix}/scene.json"),
+            preview: format!("{prefix}/preview.png"),
+        },
+    };
+    let store = queue.store();
+    let write = |name: &str, bytes: &[u8]| {
+        store
+            .write_artefact(job_id, &format!("edits/{id}/{name}"), bytes)
+            .map_err(|e| ApiError::Internal(e.to_string()))
+    };
+    write(
+        "scene.json",
+        &serde_json::to_vec_pretty(&edit.scene).expect("a scene serialises"),
+    )?;
+    write(
+        "result.svg",
+        svg::to_svg(&edit.scene, &svg::SvgOptions::default()).as_bytes(),
+    )?;
+    write(
+        "preview.png",
+        &imageio::encode_png(&pipeline::composite(&edit.scene)),
+    )?;
+    write(
+        "edit.json",
+        &serde_json::to_vec_pretty(&record).expect("a record serialises"),
+    )?;
+    Ok(record)
+}
+
+/// Checks access to the job and the edit id; the edit exists once its record does.
+async fn edit_artefact(
+    state: &AppState,
+    owner: &Owner,
+    id: &str,
+    edit_id: &str,
+    file: &str,
+    media_type: &'static str,
+) -> Result<Response, ApiError> {
+    let entry = find(state, owner, id)?;
+    require_success(&entry.snapshot())?;
+    check_edit_id(edit_id)?;
+    if file != "edit.json" {
+        artefact(
+            state,
+            id,
+            format!("edits/{edit_id}/edit.json"),
+            "application/json",
+        )
+        .await?;
+    }
+    artefact(state, id, format!("edits/{edit_id}/{file}"), media_type).await
+}
+
+async fn get(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path((id, edit_id)): Path<(String, String)>,
+) -> Result<Response, ApiError> {
+    edit_artefact(
+        &state,
+        &owner,
+        &id,
+        &edit_id,
+        "edit.json",
+        "application/json",
+    )
+    .await
+}
+
+async fn edit_svg(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path((id, edit_id)): Path<(String, String)>,
+) -> Result<Response, ApiError> {
+    edit_artefact(&state, &owner, &id, &edit_id, "result.svg", SVG).await
+}
+
+async fn edit_scene(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path((id, edit_id)): Path<(String, String)>,
+) -> Result<Response, ApiError> {
+    edit_artefact(
+        &state,
+        &owner,
+        &id,
+        &edit_id,
+        "scene.json",
+        "application/json",
+    )
+    .await
+}
+
+async fn edit_preview(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path((id, edit_id)): Path<(String, String)>,
+) -> Result<Response, ApiError> {
+    edit_artefact(&state, &owner, &id, &edit_id, "preview.png", "image/png").await
+}
