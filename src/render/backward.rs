@@ -335,11 +335,11 @@ fn composite_span(
     let (br, rest) = below.split_at_mut(n);
     let (bg, bb) = rest.split_at_mut(n);
     let (bb, [cr, cg, cb]) = (&mut bb[..n], color);
+    br.copy_from_slice(r);
+    bg.copy_from_slice(g);
+    bb.copy_from_slice(b);
     for i in 0..n {
         let a = area[i].abs().min(1.0) * opacity;
-        br[i] = r[i];
-        bg[i] = g[i];
-        bb[i] = b[i];
         r[i] += a * (cr - r[i]);
         g[i] += a * (cg - g[i]);
         b[i] += a * (cb - b[i]);
