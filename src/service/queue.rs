@@ -190,6 +190,7 @@ impl Queue {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads_per_job)
                 .thread_name(move |thread| format!("covec-pipeline-{index}-{thread}"))
+                .start_handler(|_| lower_thread_priority())
                 .build()?;
             let runner = Arc::clone(&queue);
             queue.runners_alive.fetch_add(1, Ordering::SeqCst);
@@ -688,6 +689,20 @@ enum Outcome {
     /// Stopped by shutdown; runs again after restart.
     Interrupted,
 }
+
+/// Pipeline threads run at nice 10, so the HTTP threads win the CPU whenever both want it and
+/// polls stay fast while every core is busy with jobs. (On Linux `setpriority` with `who = 0`
+/// applies to the calling thread only.) Best effort: failure leaves the default priority.
+fn lower_thread_priority() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: plain syscall on the current thread; no memory is shared.
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, 0, PIPELINE_NICE);
+    }
+}
+
+#[cfg(target_os = "linux")]
+const PIPELINE_NICE: libc::c_int = 10;
 
 fn internal(error: StoreError) -> ApiError {
     ApiError::Internal(error.to_string())
