@@ -5,10 +5,13 @@
 //! over HTTP.
 
 pub mod decompose;
+pub mod eval;
 pub mod geom;
 pub mod imageio;
+pub mod optim;
 pub mod pipeline;
 pub mod render;
 pub mod scene;
 pub mod service;
 pub mod svg;
+pub mod synth;

@@ -19,6 +19,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     Vectorize(cli::vectorize::Args),
+    Eval(cli::eval::Args),
     /// Run the HTTP vectorisation service (jobs API, progress, results; see api/openapi.yaml).
     Serve(cli::serve::ServeArgs),
 }
@@ -26,7 +27,8 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Vectorize(args) => cli::vectorize::run(&args),
+        Command::Vectorize(args) => cli::vectorize::run(&args).map_err(|e| e.to_string()),
+        Command::Eval(args) => cli::eval::run(&args).map_err(|e| e.to_string()),
         Command::Serve(args) => return cli::serve::run(args),
     };
     if let Err(error) = result {

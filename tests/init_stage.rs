@@ -6,7 +6,7 @@ use covec::decompose::binarize::binarize;
 use covec::decompose::mask::Mask;
 use covec::decompose::{self, min_mask_area};
 use covec::pipeline::init::{self, path_from_mask, simplify_tolerance};
-use covec::pipeline::{self, Inputs, Masks, Mode, Params, Quiet};
+use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet};
 use covec::render::{Image, Rasterizer};
 use image::{DynamicImage, GrayImage, RgbImage};
 
@@ -150,9 +150,17 @@ fn the_path_budget_is_never_exceeded() {
     let image = DynamicImage::ImageRgb8(synthetic_photo(64, 48));
     for mode in [Mode::Photo, Mode::Simple, Mode::Auto] {
         for paths in [8u32, 9, 13, 64, 200, 1024] {
+            // No optimisation iterations and no refinement rounds: the output is the init scene.
             let params = Params {
                 paths,
                 mode,
+                iterations: Iterations {
+                    structure: 0,
+                    reconstruction: 0,
+                    refine_rounds: 0,
+                    refine: 0,
+                    polish: 0,
+                },
                 ..Params::default()
             };
             let inputs = Inputs {

@@ -48,7 +48,8 @@ pub struct Args {
     /// The SVG keeps the original size through its viewBox.
     #[arg(long, default_value_t = 512, value_name = "PX")]
     pub max_size: u32,
-    /// Seed for every random choice; equal inputs and seed give byte-identical output.
+    /// Seed for every random choice of the optimisation stages (initialisation itself is
+    /// deterministic); equal inputs and seed give byte-identical output.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Write preview PNGs of each stage (input, albedo map, masks, layers, composite) here.

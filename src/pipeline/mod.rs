@@ -5,6 +5,13 @@
 //! as soon as the stage ends.
 
 pub mod init;
+pub mod optimise;
+pub mod polish;
+pub mod refine;
+pub mod regions;
+pub mod split;
+pub mod stage;
+pub mod structure;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -151,8 +158,8 @@ pub enum Error {
 /// Runs the whole pipeline. CPU-bound: call it from a worker thread (it uses the current rayon
 /// pool inside), never from an async task.
 ///
-/// Stages so far: decompose → init. Each stage is one call between [`Stages::begin`] and
-/// [`Stages::end`], which report progress and check `cancel`.
+/// Stages: decompose → init (each between [`Stages::begin`] and [`Stages::end`]), then the
+/// optimisation stages of [`optimise::optimise`], which report every iteration themselves.
 pub fn run(
     inputs: &Inputs,
     params: &Params,
@@ -160,7 +167,12 @@ pub fn run(
     cancel: &AtomicBool,
 ) -> Result<Output, Error> {
     params.validate()?;
-    let mut stages = Stages::new(&["decompose", "init"], observer, cancel);
+    let started = Instant::now();
+    let names: &'static [&'static str] = match params.mode {
+        Mode::Simple => &SIMPLE_STAGES,
+        _ => &PHOTO_STAGES,
+    };
+    let mut stages = Stages::new(names, observer, cancel);
     let original = (inputs.image.width(), inputs.image.height());
 
     stages.begin()?;
@@ -174,11 +186,44 @@ pub fn run(
     preview_init(&state, observer);
     stages.end();
 
-    Ok(Output {
-        mode: state.mode,
-        scene: state.scene,
-    })
+    let init::InitState {
+        mut scene,
+        target,
+        albedo,
+        illumination,
+        mode,
+        ..
+    } = state;
+    let groups = structure::MaskGroup::from_init(&[albedo, illumination]);
+    let ctx = stage::StageContext {
+        observer,
+        cancel,
+        started,
+        stage_count: 2 + optimise::stage_names(mode).len() as u32,
+    };
+    optimise::optimise(&mut scene, &groups, &target, mode, params, &ctx, 2)?;
+    Ok(Output { mode, scene })
 }
+
+/// All stages of a photo-mode run, for progress reports.
+const PHOTO_STAGES: [&str; 7] = [
+    "decompose",
+    "init",
+    "structure",
+    "reconstruct",
+    "refine",
+    "split",
+    "polish",
+];
+/// All stages of a simple-mode run.
+const SIMPLE_STAGES: [&str; 6] = [
+    "decompose",
+    "init",
+    "structure",
+    "reconstruct",
+    "refine",
+    "polish",
+];
 
 /// How many segmentation masks the decompose stage offers the init stage to choose from.
 const SEGMENT_CANDIDATES: usize = 128;
@@ -299,8 +344,8 @@ fn mask_overlay(target: &Image, layer: &init::LayerGroups) -> Image {
             (d - 1.0).clamp(0.0, 1.0)
         });
         for i in masked.mask.indices() {
-            for (c, &t) in tint.iter().enumerate() {
-                out.data[3 * i + c] = 0.5 * target.data[3 * i + c] + 0.5 * t;
+            for c in 0..3 {
+                out.data[3 * i + c] = 0.5 * target.data[3 * i + c] + 0.5 * tint[c];
             }
         }
     }
