@@ -489,6 +489,12 @@ impl Queue {
                 continue;
             };
             state.running += 1;
+            // Marked running under the queue lock, so `cancel` never sees a job that is
+            // neither pending nor running.
+            entry.record.send_modify(|record| {
+                record.status = Status::Running;
+                record.started_at = Some(now_ms());
+            });
             drop(state);
             self.run_job(&entry, pool);
             lock(&self.state).running -= 1;
@@ -500,10 +506,6 @@ impl Queue {
     fn run_job(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) {
         let _span = info_span!("job", job_id = %entry.id).entered();
         let started = Instant::now();
-        entry.record.send_modify(|record| {
-            record.status = Status::Running;
-            record.started_at = Some(now_ms());
-        });
         if let Err(error) = self.store.save(&entry.snapshot()) {
             warn!("saving running state: {error}");
         }
