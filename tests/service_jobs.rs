@@ -233,6 +233,7 @@ async fn cancel_stops_a_running_job_and_frees_the_worker() {
         )
         .await;
     assert_eq!(cancel.status, StatusCode::ACCEPTED, "{}", cancel.text());
+    assert_eq!(cancel.json()["cancel_requested"], true);
     let canceled = server
         .wait_for(&long, Duration::from_secs(10), terminal)
         .await;

@@ -89,6 +89,8 @@ impl JobEntry {
         let mut current = lock(&self.cancel_reason);
         current.get_or_insert(reason);
         self.cancel.store(true, Ordering::Relaxed);
+        self.record
+            .send_modify(|record| record.cancel_requested = true);
     }
 }
 
@@ -162,6 +164,7 @@ impl Queue {
                 record.status = Status::Queued;
                 record.started_at = None;
                 record.progress = None;
+                record.cancel_requested = false;
                 record.previews.clear();
                 store.remove_outputs(&record.id)?;
                 store.save(&record)?;
@@ -384,7 +387,8 @@ impl Queue {
     /// Returns whether the job was running (the cancel is then still in progress).
     pub fn cancel(&self, entry: &JobEntry) -> Result<bool, ApiError> {
         let mut state = lock(&self.state);
-        match entry.record.borrow().status {
+        let status = entry.record.borrow().status;
+        match status {
             Status::Running => {
                 entry.request_cancel(CancelReason::User);
                 return Ok(true);
@@ -549,6 +553,7 @@ impl Queue {
                     record.status = Status::Queued;
                     record.started_at = None;
                     record.progress = None;
+                    record.cancel_requested = false;
                 });
                 self.store.save(&entry.snapshot()).map_err(internal)
             }
