@@ -8,3 +8,4 @@ pub mod imageio;
 pub mod pipeline;
 pub mod render;
 pub mod scene;
+pub mod web;
