@@ -80,6 +80,8 @@ function newSession(inputUrl) {
     shownPreviews: new Set(),
     /** Versions shown, oldest first: the job's SVG, then one per edit. Undo pops. */
     versions: [],
+    /** Whether the person has picked a region yet (by click or from the list). */
+    picked: false,
     /** A click that hit no visible albedo path: recolour by position instead. */
     pickedPoint: null,
     busy: false,
@@ -628,13 +630,18 @@ function syncColourToSelection() {
   if (fill && /^#[0-9a-f]{6}$/i.test(fill)) ui.color.value = fill.toLowerCase();
 }
 
-/** Outlines the picked path over the image (outside the blended SVG, so it changes no colour). */
+/**
+ * Outlines the picked path over the image (outside the blended SVG, so it changes no colour),
+ * once the person has picked one.
+ */
 function showPicked() {
-  const path = session?.pickedPoint ? null : svgRoot()?.querySelector(`path#${CSS.escape(ui.pathSelect.value)}`);
+  const picking = session?.picked && !session.pickedPoint;
+  const path = picking ? svgRoot()?.querySelector(`path#${CSS.escape(ui.pathSelect.value)}`) : null;
   ui.pickOutline.setAttribute("d", path?.getAttribute("d") || "");
 }
 
 ui.pathSelect.addEventListener("change", () => {
+  session.picked = true;
   session.pickedPoint = null;
   syncColourToSelection();
   showPicked();
@@ -643,6 +650,7 @@ ui.pathSelect.addEventListener("change", () => {
 ui.host.addEventListener("click", (event) => {
   const svg = svgRoot();
   if (!svg || !session) return;
+  session.picked = true;
   const hit = document
     .elementsFromPoint(event.clientX, event.clientY)
     .find((element) => /^albedo-\d+$/.test(element.id) && svg.contains(element));

@@ -88,6 +88,10 @@ where
             "/app.css",
             get(|query, headers| async move { serve_versioned(&STYLE, query, &headers) }),
         )
+        .route(
+            "/favicon.svg",
+            get(|headers: HeaderMap| async move { serve(&ICON, REVALIDATE, &headers) }),
+        )
 }
 
 fn serve_versioned(asset: &Asset, RawQuery(query): RawQuery, headers: &HeaderMap) -> Response {

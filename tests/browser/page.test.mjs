@@ -101,7 +101,11 @@ async function startServer(binary) {
   const log = fs.openSync(path.join(args.artifacts, "server.log"), "w");
   const child = spawn(binary, ["serve", "--addr", `127.0.0.1:${port}`, "--data-dir", dataDir, "--workers", "1"], {
     stdio: ["ignore", log, log],
-    env: { ...process.env, RUST_LOG: process.env.RUST_LOG || "info" },
+    // Only the flags configure it: no API keys or limits from the caller's environment.
+    env: Object.fromEntries([
+      ...Object.entries(process.env).filter(([name]) => !name.startsWith("COVEC_")),
+      ["COVEC_LOG", process.env.COVEC_LOG || "info"],
+    ]),
   });
   let exited = null;
   child.on("exit", (code, signal) => (exited = { code, signal }));
@@ -280,12 +284,14 @@ async function run(context, base) {
   };
   const svg = page.locator("#svg-host > svg");
   /**
-   * The vector image's own pixels, without the pick outline drawn over it: a clip snapped to
-   * whole pixels (the page's text can leave the image at a fractional offset) of the SVG's size.
+   * The vector image's own pixels, without the pick outline drawn over it: a clip of the SVG's
+   * size snapped to whole pixels.
    */
   const svgPixels = async () => {
     await page.evaluate(() => (document.getElementById("pick-overlay").style.visibility = "hidden"));
-    await svg.scrollIntoViewIfNeeded();
+    // The same scroll position every time (image at the viewport's top), so that every capture
+    // sees the same pixel grid.
+    await svg.evaluate((e) => e.scrollIntoView({ block: "start", behavior: "instant" }));
     const box = await svg.boundingBox(); // viewport coordinates, as the clip wants them
     const size = await svg.evaluate((e) => [e.clientWidth, e.clientHeight]);
     const clip = { x: Math.round(box.x), y: Math.round(box.y), width: size[0], height: size[1] };
@@ -500,6 +506,9 @@ async function run(context, base) {
     await page.mouse.click(target.click.x, target.click.y);
     const picked = await page.locator("#path-select").inputValue();
     check(picked === target.id, `clicked ${target.id} but ${picked} is selected`);
+    const outline = await page.locator("#pick-outline").getAttribute("d");
+    const pathData = await page.locator(`#svg-host path#${target.id}`).getAttribute("d");
+    check(outline === pathData, "the picked region is not outlined");
     facts.recolour = { path: target.id, old_fill: target.fill, area_points: target.points.length };
     await screenshot("picked");
   });
