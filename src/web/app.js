@@ -139,6 +139,8 @@ function chooseFile(file) {
 }
 
 ui.image.addEventListener("change", () => chooseFile(ui.image.files[0]));
+// A file that claims to be an image but is not decodable: no thumbnail (the server will say why).
+ui.chosen.addEventListener("error", () => (ui.chosen.hidden = true));
 
 for (const type of ["dragenter", "dragover"]) {
   ui.drop.addEventListener(type, (event) => {

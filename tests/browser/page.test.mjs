@@ -47,6 +47,8 @@ const JOB = {
   iterations: { structure: "8", reconstruction: "8", "refine-rounds": "1", refine: "8", polish: "8" },
 };
 const JOB_TIMEOUT_MS = 120_000;
+/** The request body limit the test's server gets, so that an oversized upload is quick to make. */
+const MAX_BODY_BYTES = 1_000_000;
 /** Issue 7's bar for "the page's rendering matches our renderer". */
 const PARITY_MEAN_MAX = 1.5;
 /**
@@ -99,7 +101,8 @@ async function startServer(binary) {
   const port = await freePort();
   const dataDir = fs.mkdtempSync(path.join(os.tmpdir(), "covec-web-test-data-"));
   const log = fs.openSync(path.join(args.artifacts, "server.log"), "w");
-  const child = spawn(binary, ["serve", "--addr", `127.0.0.1:${port}`, "--data-dir", dataDir, "--workers", "1"], {
+  const flags = ["--addr", `127.0.0.1:${port}`, "--data-dir", dataDir, "--workers", "1", "--max-body-bytes", `${MAX_BODY_BYTES}`];
+  const child = spawn(binary, ["serve", ...flags], {
     stdio: ["ignore", log, log],
     // Only the flags configure it: no API keys or limits from the caller's environment.
     env: Object.fromEntries([
@@ -356,6 +359,22 @@ async function run(context, base) {
     await screenshot("rejected-by-server");
   });
 
+  if (args.covec) {
+    await step("an upload over the server's size limit says so", async () => {
+      const big = Buffer.alloc(MAX_BODY_BYTES + 100_000, 7);
+      big.write("\x89PNG\r\n\x1a\n", 0, "latin1");
+      await page.setInputFiles("#image", { name: "huge.png", mimeType: "image/png", buffer: big });
+      expectRejectedUpload = true;
+      await page.click("#submit");
+      await page.waitForFunction(() => /too large|limit/i.test(document.getElementById("form-error").textContent), null, {
+        timeout: 10_000,
+      });
+      expectRejectedUpload = false;
+      facts.too_large_message = await page.locator("#form-error").textContent();
+      await screenshot("too-large");
+    });
+  }
+
   let job;
   await step("uploads the bench image with a small budget and shows live progress", async () => {
     await page.setInputFiles("#image", FIXTURE);
@@ -549,6 +568,7 @@ async function run(context, base) {
   });
 
   await step("undo brings the original back", async () => {
+    check(await page.locator("#undo").isEnabled(), "nothing to undo: the recolour did not happen");
     await page.click("#undo");
     await page.waitForSelector('#svg-host[data-version="original"]');
     const restored = await pixels.diff(composite, await svgPixels());
@@ -587,6 +607,18 @@ async function run(context, base) {
     check(box && box.width >= 300, `result only ${box?.width}px wide on a phone`);
     await screenshot("phone");
     await page.setViewportSize({ width: 1280, height: 900 });
+  });
+
+  await step("a running job can be canceled and says so", async () => {
+    await page.fill("#it-structure", "3000");
+    await page.click("#submit");
+    await page.waitForSelector("body[data-state=running]", { timeout: JOB_TIMEOUT_MS });
+    await page.click("#cancel");
+    await page.waitForSelector("body[data-state=canceled]", { timeout: 30_000 });
+    const message = await page.locator("#job-error").textContent();
+    check(/canceled/i.test(message), `message: ${message}`);
+    check(await page.locator("#result").isHidden(), "a canceled job shows a result");
+    await screenshot("canceled");
   });
 
   await step("no script errors or blocked resources", async () => {
