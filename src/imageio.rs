@@ -1,4 +1,11 @@
 //! Decoding inputs under limits, and encoding previews.
+//!
+//! Every decoder here reads the header first and refuses an image over [`Limits::max_pixels`]
+//! before any pixel is decoded, so a small file claiming a huge canvas costs nothing.
+
+use std::io::Cursor;
+
+use image::{DynamicImage, GrayImage, ImageDecoder, ImageReader};
 
 use crate::render::Image;
 
@@ -7,7 +14,7 @@ use crate::render::Image;
 pub struct Limits {
     /// Largest decoded image, in pixels (width × height). Default 40 000 000.
     pub max_pixels: u64,
-    /// Most masks accepted. Default 256.
+    /// Most masks accepted (binary masks, or distinct values of a label map). Default 256.
     pub max_masks: usize,
 }
 
@@ -25,17 +32,210 @@ impl Default for Limits {
 pub enum InputError {
     #[error("the image could not be decoded: {0}")]
     Undecodable(String),
+    #[error("the image is empty ({width}×{height} pixels)")]
+    Empty { width: u32, height: u32 },
+    #[error(
+        "the image has {width}×{height} = {pixels} pixels, more than the limit of {max} (raise --max-pixels)"
+    )]
+    TooManyPixels {
+        width: u32,
+        height: u32,
+        pixels: u64,
+        max: u64,
+    },
+    #[error(
+        "mask {name} is not binary: it holds {levels} distinct values; a binary mask holds 0 and one other value"
+    )]
+    NonBinaryMask { name: String, levels: usize },
+    #[error("{count} masks given, more than the limit of {max} (raise --max-masks)")]
+    TooManyMasks { count: usize, max: usize },
 }
 
 /// Decodes PNG/JPEG/WebP bytes with EXIF orientation applied, refusing more than `limits.max_pixels`
-/// before decoding.
-pub fn decode_image(bytes: &[u8], limits: &Limits) -> Result<image::DynamicImage, InputError> {
-    let _ = (bytes, limits);
-    todo!("issue 3")
+/// before decoding. Alpha is composited over white, so the result has no alpha channel:
+/// `Rgb8` for 8-bit sources, `Rgb16` for 16-bit ones, `Rgb32F` for float ones.
+pub fn decode_image(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputError> {
+    Ok(flatten_over_white(decode_oriented(bytes, limits)?))
+}
+
+/// Decodes one binary mask (any PNG/JPEG/WebP; colour is reduced to luma). `name` appears in
+/// errors. Non-zero pixels are "inside"; the mask must hold at most two distinct values, one of
+/// them 0 (an all-zero or all-one mask is allowed).
+pub fn decode_mask(name: &str, bytes: &[u8], limits: &Limits) -> Result<GrayImage, InputError> {
+    let image = flatten_over_white(decode_oriented(bytes, limits)?).into_luma16();
+    let mut levels: Vec<u16> = Vec::new();
+    for &v in image.as_raw() {
+        if !levels.contains(&v) {
+            levels.push(v);
+            if levels.len() > 2 {
+                break;
+            }
+        }
+    }
+    let binary = levels.len() == 1 || (levels.len() == 2 && levels.contains(&0));
+    if !binary {
+        let levels = count_levels(image.as_raw());
+        return Err(InputError::NonBinaryMask {
+            name: name.to_string(),
+            levels,
+        });
+    }
+    let (width, height) = image.dimensions();
+    let data = image
+        .as_raw()
+        .iter()
+        .map(|&v| if v > 0 { 255 } else { 0 })
+        .collect();
+    Ok(GrayImage::from_raw(width, height, data).expect("same size"))
+}
+
+/// Decodes binary masks given as `(name, bytes)`, refusing more than `limits.max_masks`.
+pub fn decode_masks<'a>(
+    files: impl ExactSizeIterator<Item = (&'a str, &'a [u8])>,
+    limits: &Limits,
+) -> Result<Vec<GrayImage>, InputError> {
+    if files.len() > limits.max_masks {
+        return Err(InputError::TooManyMasks {
+            count: files.len(),
+            max: limits.max_masks,
+        });
+    }
+    files
+        .map(|(name, bytes)| decode_mask(name, bytes, limits))
+        .collect()
+}
+
+/// Decodes a label map (each distinct colour or grey value is a segment), refusing more than
+/// `limits.max_masks` distinct values. Returned as decoded (orientation applied), for
+/// [`crate::pipeline::Masks::Labels`].
+pub fn decode_labels(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputError> {
+    let image = decode_oriented(bytes, limits)?;
+    let rgba = image.to_rgba16();
+    let mut seen = std::collections::HashSet::new();
+    for pixel in rgba.pixels() {
+        seen.insert(pixel.0);
+        if seen.len() > limits.max_masks {
+            return Err(InputError::TooManyMasks {
+                count: seen.len(),
+                max: limits.max_masks,
+            });
+        }
+    }
+    Ok(image)
 }
 
 /// PNG bytes of an image (values clamped to [0, 1], 8-bit sRGB).
 pub fn encode_png(image: &Image) -> Vec<u8> {
-    let _ = image;
-    todo!("issue 3")
+    let data = image
+        .data
+        .iter()
+        .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect();
+    let rgb = image::RgbImage::from_raw(image.width as u32, image.height as u32, data)
+        .expect("Image data holds width × height × 3 values");
+    let mut bytes = Vec::new();
+    rgb.write_to(&mut Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .expect("PNG encoding into memory cannot fail");
+    bytes
+}
+
+/// An image as an f32 RGB [`Image`] in [0, 1], alpha composited over white.
+pub fn to_rgb_image(image: &DynamicImage) -> Image {
+    let rgb = flatten_over_white(image.clone()).into_rgb32f();
+    Image {
+        width: rgb.width() as usize,
+        height: rgb.height() as usize,
+        data: rgb.into_raw(),
+    }
+}
+
+fn decode_oriented(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputError> {
+    let undecodable = |e: image::ImageError| InputError::Undecodable(e.to_string());
+    let mut reader = ImageReader::new(Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| InputError::Undecodable(e.to_string()))?;
+    if reader.format().is_none() {
+        return Err(InputError::Undecodable(
+            "not a PNG, JPEG or WebP file".into(),
+        ));
+    }
+    // Our own pixel limit is checked first, from the header; the decoder's allocation limit
+    // is set after it (room for the largest allowed image at 16-bit RGBA, twice).
+    reader.no_limits();
+    let mut decoder = reader.into_decoder().map_err(undecodable)?;
+    let (width, height) = decoder.dimensions();
+    if width == 0 || height == 0 {
+        return Err(InputError::Empty { width, height });
+    }
+    let pixels = u64::from(width) * u64::from(height);
+    if pixels > limits.max_pixels {
+        return Err(InputError::TooManyPixels {
+            width,
+            height,
+            pixels,
+            max: limits.max_pixels,
+        });
+    }
+    let mut decoder_limits = image::Limits::default();
+    decoder_limits.max_alloc = Some(limits.max_pixels.saturating_mul(16).max(512 << 20));
+    decoder.set_limits(decoder_limits).map_err(undecodable)?;
+    let orientation = decoder.orientation().map_err(undecodable)?;
+    let mut image = DynamicImage::from_decoder(decoder).map_err(undecodable)?;
+    image.apply_orientation(orientation);
+    Ok(image)
+}
+
+/// Composites any alpha over white and drops it, keeping the bit depth.
+fn flatten_over_white(image: DynamicImage) -> DynamicImage {
+    if !image.color().has_alpha() {
+        return match image {
+            DynamicImage::ImageLuma8(_) => DynamicImage::ImageRgb8(image.into_rgb8()),
+            DynamicImage::ImageLuma16(_) => DynamicImage::ImageRgb16(image.into_rgb16()),
+            other => other,
+        };
+    }
+    match image {
+        DynamicImage::ImageLumaA8(_) | DynamicImage::ImageRgba8(_) => {
+            let rgba = image.into_rgba8();
+            let (w, h) = rgba.dimensions();
+            let data = rgba.pixels().flat_map(|p| over_white_u8(p.0)).collect();
+            DynamicImage::ImageRgb8(image::RgbImage::from_raw(w, h, data).expect("same size"))
+        }
+        DynamicImage::ImageLumaA16(_) | DynamicImage::ImageRgba16(_) => {
+            let rgba = image.into_rgba16();
+            let (w, h) = rgba.dimensions();
+            let data = rgba.pixels().flat_map(|p| over_white_u16(p.0)).collect();
+            DynamicImage::ImageRgb16(image::ImageBuffer::from_raw(w, h, data).expect("same size"))
+        }
+        other => {
+            let rgba = other.into_rgba32f();
+            let (w, h) = rgba.dimensions();
+            let data = rgba
+                .pixels()
+                .flat_map(|p| {
+                    let a = p.0[3].clamp(0.0, 1.0);
+                    [0, 1, 2].map(|c| p.0[c] * a + (1.0 - a))
+                })
+                .collect();
+            DynamicImage::ImageRgb32F(image::ImageBuffer::from_raw(w, h, data).expect("same size"))
+        }
+    }
+}
+
+fn over_white_u8([r, g, b, a]: [u8; 4]) -> [u8; 3] {
+    let a = u32::from(a);
+    [r, g, b].map(|c| ((u32::from(c) * a + 255 * (255 - a) + 127) / 255) as u8)
+}
+
+fn over_white_u16([r, g, b, a]: [u16; 4]) -> [u16; 3] {
+    let a = u64::from(a);
+    [r, g, b].map(|c| ((u64::from(c) * a + 65535 * (65535 - a) + 32767) / 65535) as u16)
+}
+
+fn count_levels(values: &[u16]) -> usize {
+    let mut seen = vec![false; 65536];
+    values
+        .iter()
+        .filter(|&&v| !std::mem::replace(&mut seen[usize::from(v)], true))
+        .count()
 }

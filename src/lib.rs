@@ -4,8 +4,15 @@
 //! editor. The [`pipeline`] turns an image into a scene in named stages; [`service`] serves it
 //! over HTTP.
 
+pub mod decompose;
+pub mod eval;
+pub mod geom;
 pub mod imageio;
+pub mod optim;
 pub mod pipeline;
 pub mod render;
 pub mod scene;
+pub mod service;
+pub mod svg;
+pub mod synth;
 pub mod web;

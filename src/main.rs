@@ -1,6 +1,9 @@
 //! The `covec` command line.
 
+use std::process::ExitCode;
+
 use clap::{Parser, Subcommand};
+mod cli;
 
 #[derive(Parser)]
 #[command(
@@ -14,9 +17,23 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    Vectorize(cli::vectorize::Args),
+    Eval(cli::eval::Args),
+    /// Run the HTTP vectorisation service (jobs API, progress, results; see api/openapi.yaml).
+    Serve(cli::serve::ServeArgs),
+}
 
-fn main() {
+fn main() -> ExitCode {
     let cli = Cli::parse();
-    match cli.command {}
+    let result = match cli.command {
+        Command::Vectorize(args) => cli::vectorize::run(&args).map_err(|e| e.to_string()),
+        Command::Eval(args) => cli::eval::run(&args).map_err(|e| e.to_string()),
+        Command::Serve(args) => return cli::serve::run(args),
+    };
+    if let Err(error) = result {
+        eprintln!("error: {error}");
+        return ExitCode::FAILURE;
+    }
+    ExitCode::SUCCESS
 }

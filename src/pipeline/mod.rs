@@ -4,13 +4,23 @@
 //! [`Observer`], check `cancel` every iteration, and hand each stage's previews to the observer
 //! as soon as the stage ends.
 
-use std::sync::atomic::AtomicBool;
-use std::time::Duration;
+pub mod init;
+pub mod optimise;
+pub mod polish;
+pub mod refine;
+pub mod regions;
+pub mod split;
+pub mod stage;
+pub mod structure;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
-use crate::render::Image;
-use crate::scene::Scene;
+use crate::decompose;
+use crate::render::{Image, Rasterizer};
+use crate::scene::{LayerKind, Scene};
 
 /// Which variant of the method to run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -147,12 +157,225 @@ pub enum Error {
 
 /// Runs the whole pipeline. CPU-bound: call it from a worker thread (it uses the current rayon
 /// pool inside), never from an async task.
+///
+/// Stages: decompose → init (each between [`Stages::begin`] and [`Stages::end`]), then the
+/// optimisation stages of [`optimise::optimise`], which report every iteration themselves.
 pub fn run(
     inputs: &Inputs,
     params: &Params,
     observer: &dyn Observer,
     cancel: &AtomicBool,
 ) -> Result<Output, Error> {
-    let _ = (inputs, params, observer, cancel);
-    todo!("pipeline::run: initialisation lands with issue 3, optimisation with issue 4")
+    params.validate()?;
+    let started = Instant::now();
+    let names: &'static [&'static str] = match params.mode {
+        Mode::Simple => &SIMPLE_STAGES,
+        _ => &PHOTO_STAGES,
+    };
+    let mut stages = Stages::new(names, observer, cancel);
+    let original = (inputs.image.width(), inputs.image.height());
+
+    stages.begin()?;
+    let decomposition = decompose::run(inputs, params, SEGMENT_CANDIDATES)?;
+    observer.preview("00-input", &decomposition.target);
+    observer.preview("00-albedo-map", &decomposition.albedo);
+    stages.end();
+
+    stages.begin()?;
+    let state = init::run(decomposition, params, original)?;
+    preview_init(&state, observer);
+    stages.end();
+
+    let init::InitState {
+        mut scene,
+        target,
+        albedo,
+        illumination,
+        mode,
+        ..
+    } = state;
+    let groups = structure::MaskGroup::from_init(&[albedo, illumination]);
+    let ctx = stage::StageContext {
+        observer,
+        cancel,
+        started,
+        stage_count: 2 + optimise::stage_names(mode).len() as u32,
+    };
+    optimise::optimise(&mut scene, &groups, &target, mode, params, &ctx, 2)?;
+    Ok(Output { mode, scene })
+}
+
+/// All stages of a photo-mode run, for progress reports.
+const PHOTO_STAGES: [&str; 7] = [
+    "decompose",
+    "init",
+    "structure",
+    "reconstruct",
+    "refine",
+    "split",
+    "polish",
+];
+/// All stages of a simple-mode run.
+const SIMPLE_STAGES: [&str; 6] = [
+    "decompose",
+    "init",
+    "structure",
+    "reconstruct",
+    "refine",
+    "polish",
+];
+
+/// How many segmentation masks the decompose stage offers the init stage to choose from.
+const SEGMENT_CANDIDATES: usize = 128;
+
+impl Params {
+    /// Refuses values outside their documented ranges.
+    pub fn validate(&self) -> Result<(), Error> {
+        if !(8..=1024).contains(&self.paths) {
+            return Err(Error::Params(format!(
+                "paths must be within 8-1024, not {}",
+                self.paths
+            )));
+        }
+        if !(16..=4096).contains(&self.max_size) {
+            return Err(Error::Params(format!(
+                "max_size must be within 16-4096, not {}",
+                self.max_size
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Progress bookkeeping for [`run`]: one report when a stage begins and one when it ends.
+pub struct Stages<'a> {
+    names: &'static [&'static str],
+    index: usize,
+    started: Instant,
+    observer: &'a dyn Observer,
+    cancel: &'a AtomicBool,
+}
+
+impl<'a> Stages<'a> {
+    pub fn new(
+        names: &'static [&'static str],
+        observer: &'a dyn Observer,
+        cancel: &'a AtomicBool,
+    ) -> Self {
+        Self {
+            names,
+            index: 0,
+            started: Instant::now(),
+            observer,
+            cancel,
+        }
+    }
+
+    /// Starts the next stage, unless the run was canceled.
+    pub fn begin(&mut self) -> Result<(), Error> {
+        if self.cancel.load(Ordering::Relaxed) {
+            return Err(Error::Canceled);
+        }
+        self.report(0, 1, None);
+        Ok(())
+    }
+
+    /// Reports progress `iteration / iterations` within the current stage; `Err(Canceled)` if
+    /// the run was canceled.
+    pub fn iteration(
+        &self,
+        iteration: u32,
+        iterations: u32,
+        loss: Option<f32>,
+    ) -> Result<(), Error> {
+        if self.cancel.load(Ordering::Relaxed) {
+            return Err(Error::Canceled);
+        }
+        self.report(iteration, iterations, loss);
+        Ok(())
+    }
+
+    /// Ends the current stage.
+    pub fn end(&mut self) {
+        self.report(1, 1, None);
+        self.index += 1;
+    }
+
+    fn report(&self, iteration: u32, iterations: u32, loss: Option<f32>) {
+        self.observer.progress(&Progress {
+            stage: self.names[self.index],
+            stage_index: self.index as u32,
+            stage_count: self.names.len() as u32,
+            iteration,
+            iterations,
+            loss,
+            elapsed: self.started.elapsed(),
+        });
+    }
+}
+
+/// Previews of the init stage: masks overlaid on the target, each layer, and the composite.
+fn preview_init(state: &init::InitState, observer: &dyn Observer) {
+    observer.preview(
+        "01-masks-albedo",
+        &mask_overlay(&state.target, &state.albedo),
+    );
+    if state.mode != Mode::Simple {
+        observer.preview(
+            "01-masks-illumination",
+            &mask_overlay(&state.target, &state.illumination),
+        );
+    }
+    let layers = render_layers(&state.scene);
+    for (kind, image) in LayerKind::ALL.iter().zip(&layers) {
+        observer.preview(&format!("01-init-{}", kind.name()), image);
+    }
+    observer.preview("01-init-composite", &composite_layers(&layers));
+}
+
+/// Each mask's visible part tinted with a colour of its own, half over the target.
+fn mask_overlay(target: &Image, layer: &init::LayerGroups) -> Image {
+    let mut out = target.clone();
+    for (k, masked) in layer.groups.iter().flatten().enumerate() {
+        // Golden-angle hues: neighbours in paint order get well-separated colours.
+        let hue = (k as f32 * 0.618_034).fract() * 6.0;
+        let tint = [0.0f32, 2.0, 4.0].map(|offset| {
+            let d = ((hue - offset + 9.0) % 6.0 - 3.0).abs();
+            (d - 1.0).clamp(0.0, 1.0)
+        });
+        for i in masked.mask.indices() {
+            for c in 0..3 {
+                out.data[3 * i + c] = 0.5 * target.data[3 * i + c] + 0.5 * tint[c];
+            }
+        }
+    }
+    out
+}
+
+/// Each layer rendered over its base colour (white, white, black).
+pub fn render_layers(scene: &Scene) -> [Image; 3] {
+    let mut rasterizer = Rasterizer::new();
+    LayerKind::ALL.map(|kind| {
+        let mut image = Image::default();
+        let (w, h) = (scene.width as usize, scene.height as usize);
+        rasterizer.render(&scene.layer(kind).paths, kind.base(), w, h, &mut image);
+        image
+    })
+}
+
+/// clamp01(albedo · shade + light), as the SVG's blend modes show it.
+pub fn composite_layers([albedo, shade, light]: &[Image; 3]) -> Image {
+    let data = (0..albedo.data.len())
+        .map(|i| (albedo.data[i] * shade.data[i] + light.data[i]).clamp(0.0, 1.0))
+        .collect();
+    Image {
+        width: albedo.width,
+        height: albedo.height,
+        data,
+    }
+}
+
+/// The scene as shown: its three layers rendered and composited.
+pub fn composite(scene: &Scene) -> Image {
+    composite_layers(&render_layers(scene))
 }

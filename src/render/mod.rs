@@ -8,8 +8,43 @@
 //!   colour, opacity) into `grads` (one [`PathGrad`] per path, same shapes as the paths).
 //! - Colours are not clamped here (illumination colours may exceed 1); opacities must be in [0, 1].
 //! - Results are bit-identical whatever the rayon thread count.
+//!
+//! # How
+//! Each cubic is flattened at uniform parameters `t_k = k/n`, `n` chosen from the control polygon
+//! so the polyline stays within [`FLATTEN_TOLERANCE`](crate::geom::bezier::FLATTEN_TOLERANCE)
+//! (0.1 px) of the curve. The polyline is scan-converted by signed-area accumulation (as font
+//! rasterisers do): the prefix sum of per-cell deltas along a row is the winding-weighted area
+//! of the outline inside each pixel, `acc`, and the coverage is `min(1, |acc|)`. That is the
+//! exact box-filtered area for outlines that do not overlap themselves inside a pixel; inside
+//! doubly wound regions it is exactly 1 (non-zero rule), and only a pixel that contains an edge
+//! of a doubly wound region (or of oppositely wound parts) is approximated, as in every
+//! accumulation rasteriser. The backward is the exact derivative of this forward: it runs the
+//! composite backwards per pixel and pushes dL/d`acc` through the flattened edges with the
+//! boundary-integral adjoint (see `raster`), then through the fixed Bernstein weights to the
+//! control points.
+//!
+//! The canvas is processed in strips of [`STRIP_ROWS`] rows with rayon (the caller's current
+//! pool); every strip produces its own partial gradients, reduced in strip order, so results do
+//! not depend on the thread count. Per-thread buffers live in the [`Rasterizer`] and are reused.
 
+mod backward;
+pub mod composite;
+mod flatten;
+mod raster;
+mod real;
+
+use std::sync::Mutex;
+
+use rayon::prelude::*;
+
+use crate::geom::bezier::FLATTEN_TOLERANCE;
 use crate::scene::{Path, Point};
+use flatten::FlatScene;
+use raster::RowSpan;
+use real::Real;
+
+/// Rows per strip: the unit of parallel work and of the backward's per-pixel bookkeeping.
+pub const STRIP_ROWS: usize = 16;
 
 /// An f32 RGB image, row-major, channels interleaved.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -37,6 +72,13 @@ impl Image {
         let i = 3 * (y * self.width + x);
         [self.data[i], self.data[i + 1], self.data[i + 2]]
     }
+
+    /// Resizes to `width × height` (keeping the allocation when it is large enough).
+    pub fn resize(&mut self, width: usize, height: usize) {
+        self.width = width;
+        self.height = height;
+        self.data.resize(width * height * 3, 0.0);
+    }
 }
 
 /// dLoss/d(parameters) of one path; `points` matches `Path::points` one to one.
@@ -61,13 +103,97 @@ impl PathGrad {
     }
 }
 
+/// Fewest lines a cubic is flattened into under [`Flattening::Tolerance`].
+///
+/// The tolerance alone makes the *image* accurate but not the *gradients*: a nearly straight
+/// cubic would become one or two lines, and then its handles would get no gradient at all,
+/// although moving them does bend the curve. The flattened vertices carry the Bernstein weights
+/// at `t_k = k/n`, so the chained gradient is the true curve gradient up to piecewise-linear
+/// interpolation of those weights, an error of order `1/n²`; with 16 lines it is about 1%
+/// (measured on the DiffVG fixture: a straight-ish segment's anchor gradient is 0.65× the true
+/// value with the tolerance's 2 lines, within 1% of the 64-line value with 16).
+pub const MIN_LINES_PER_CUBIC: u32 = 16;
+
+/// How cubics are turned into lines.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Flattening {
+    /// As many lines per cubic as needed to stay within this distance (pixels) of the curve,
+    /// and at least [`MIN_LINES_PER_CUBIC`].
+    Tolerance(f32),
+    /// Exactly this many lines per cubic (useful to keep the flattening fixed while
+    /// finite-differencing the forward pass).
+    Fixed(u32),
+}
+
+impl Default for Flattening {
+    /// `Tolerance(FLATTEN_TOLERANCE)` = 0.1 px.
+    fn default() -> Self {
+        Flattening::Tolerance(FLATTEN_TOLERANCE)
+    }
+}
+
+/// Why a path cannot be drawn. The rasteriser skips such paths (they paint nothing and get
+/// zero gradients); callers that take paths from outside should [`check_path`] them first.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum PathError {
+    #[error("a path needs 3 points per cubic segment and at least one segment, got {0} points")]
+    PointCount(usize),
+    #[error("path point {0} is not finite")]
+    NonFinitePoint(usize),
+    #[error("path colour or opacity is not finite")]
+    NonFinitePaint,
+}
+
+/// Checks that `path` is drawable: a positive multiple of 3 points, all finite, finite paint.
+pub fn check_path(path: &Path) -> Result<(), PathError> {
+    if path.points.is_empty() || !path.points.len().is_multiple_of(3) {
+        return Err(PathError::PointCount(path.points.len()));
+    }
+    if let Some(i) = path
+        .points
+        .iter()
+        .position(|p| !(p.x.is_finite() && p.y.is_finite()))
+    {
+        return Err(PathError::NonFinitePoint(i));
+    }
+    if !(path.color.iter().all(|c| c.is_finite()) && path.opacity.is_finite()) {
+        return Err(PathError::NonFinitePaint);
+    }
+    Ok(())
+}
+
+/// Per-thread working memory, reused across strips and calls.
+#[derive(Default)]
+struct Scratch {
+    coverage: StripCoverage<f32>,
+    backward: backward::Workspace,
+}
+
 /// Reusable rasteriser: keeps its buffers between calls so optimisation loops don't allocate.
 #[derive(Default)]
-pub struct Rasterizer {}
+pub struct Rasterizer {
+    flattening: Flattening,
+    flat: FlatScene<f32>,
+    pool: Mutex<Vec<Scratch>>,
+    bands: Vec<backward::BandGrads>,
+    totals: backward::Totals,
+}
 
 impl Rasterizer {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A rasteriser that flattens cubics as `flattening` says.
+    pub fn with_flattening(flattening: Flattening) -> Self {
+        Self {
+            flattening,
+            ..Self::default()
+        }
+    }
+
+    pub fn flattening(&self) -> Flattening {
+        self.flattening
     }
 
     /// Renders `paths` over `base` into `out`, which is resized to `width × height`.
@@ -79,12 +205,63 @@ impl Rasterizer {
         height: usize,
         out: &mut Image,
     ) {
-        let _ = (paths, base);
-        *out = Image::filled(width, height, base);
+        out.resize(width, height);
+        if width == 0 || height == 0 {
+            return;
+        }
+        self.flat.build(paths, self.flattening);
+        let flat = &self.flat;
+        let pool = &self.pool;
+        out.data
+            .par_chunks_mut(STRIP_ROWS * width * 3)
+            .enumerate()
+            .for_each(|(s, pixels)| {
+                let mut scratch = take(pool);
+                render_strip(
+                    flat,
+                    paths,
+                    base,
+                    width,
+                    height,
+                    s,
+                    pixels,
+                    &mut scratch.coverage,
+                );
+                give(pool, scratch);
+            });
+    }
+
+    /// The same forward as [`render`](Self::render) evaluated entirely in f64 (flattening,
+    /// coverage and compositing): the reference for finite-difference checks of the gradients,
+    /// where f32 rounding of the forward would swamp small steps. Returns the
+    /// interleaved RGB values. Slower and allocating; not for the optimisation loop.
+    pub fn render_f64(
+        &self,
+        paths: &[Path],
+        base: [f32; 3],
+        width: usize,
+        height: usize,
+    ) -> Vec<f64> {
+        let mut out = vec![0.0f64; width * height * 3];
+        if width == 0 || height == 0 {
+            return out;
+        }
+        let mut flat = FlatScene::<f64>::default();
+        flat.build(paths, self.flattening);
+        out.par_chunks_mut(STRIP_ROWS * width * 3)
+            .enumerate()
+            .for_each_init(StripCoverage::<f64>::default, |coverage, (s, pixels)| {
+                render_strip(&flat, paths, base, width, height, s, pixels, coverage)
+            });
+        out
     }
 
     /// Adds dLoss/dparams of the render of `paths` over `base` into `grads`, given
     /// `d_out` = dLoss/dPixel of that render (same size).
+    ///
+    /// # Panics
+    /// If `d_out.data` does not hold `width × height × 3` values or `grads` has fewer entries
+    /// than `paths` or an entry whose `points` is shorter than its path's.
     pub fn backward(
         &mut self,
         paths: &[Path],
@@ -92,6 +269,145 @@ impl Rasterizer {
         d_out: &Image,
         grads: &mut [PathGrad],
     ) {
-        let _ = (paths, base, d_out, grads);
+        let (width, height) = (d_out.width, d_out.height);
+        assert_eq!(
+            d_out.data.len(),
+            width * height * 3,
+            "d_out must be width × height × 3"
+        );
+        assert!(grads.len() >= paths.len(), "one PathGrad per path");
+        if width == 0 || height == 0 {
+            return;
+        }
+        self.flat.build(paths, self.flattening);
+        let band_count = height.div_ceil(STRIP_ROWS);
+        if self.bands.len() < band_count {
+            self.bands.resize_with(band_count, Default::default);
+        }
+        let rows_per_pass = backward::rows_per_pass(&self.flat, width, height);
+        let flat = &self.flat;
+        let pool = &self.pool;
+        self.bands[..band_count]
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(band, grads)| {
+                let mut scratch = take(pool);
+                let job = backward::Band {
+                    flat,
+                    paths,
+                    base,
+                    d_out,
+                    band,
+                    rows_per_pass,
+                };
+                job.run(grads, &mut scratch.backward, &mut scratch.coverage);
+                give(pool, scratch);
+            });
+        // Reduce in band order (deterministic), then chain to the control points.
+        self.totals
+            .reduce(flat, &self.bands[..band_count], paths.len());
+        self.totals.add_into(flat, grads);
+    }
+}
+
+fn take(pool: &Mutex<Vec<Scratch>>) -> Scratch {
+    pool.lock()
+        .map(|mut p| p.pop())
+        .ok()
+        .flatten()
+        .unwrap_or_default()
+}
+
+fn give(pool: &Mutex<Vec<Scratch>>, scratch: Scratch) {
+    if let Ok(mut p) = pool.lock() {
+        p.push(scratch);
+    }
+}
+
+/// Rows `row0..row0 + rows` of strip `s`.
+fn strip_rows(s: usize, height: usize) -> (usize, usize) {
+    let row0 = s * STRIP_ROWS;
+    (row0, STRIP_ROWS.min(height - row0))
+}
+
+/// Whether the path's polyline can cover any pixel of the strip.
+fn meets_strip(bbox: [f32; 4], row0: usize, rows: usize, width: usize) -> bool {
+    bbox[3] > row0 as f32
+        && bbox[1] < (row0 + rows) as f32
+        && bbox[2] > 0.0
+        && bbox[0] < width as f32
+}
+
+/// One path's signed-area deltas over a strip (row stride `width + 2`) and its row spans.
+#[derive(Default)]
+struct StripCoverage<T> {
+    delta: Vec<T>,
+    spans: Vec<RowSpan>,
+}
+
+impl<T: Real> StripCoverage<T> {
+    /// Sizes the buffers for a canvas `width` wide; `delta` is all zero afterwards (every user
+    /// clears what it touched).
+    fn prepare(&mut self, width: usize) {
+        let len = STRIP_ROWS * (width + 2);
+        if self.delta.len() != len {
+            self.delta.clear();
+            self.delta.resize(len, T::ZERO);
+        }
+        self.spans.resize(STRIP_ROWS, RowSpan::EMPTY);
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn render_strip<T: Real>(
+    flat: &FlatScene<T>,
+    paths: &[Path],
+    base: [f32; 3],
+    width: usize,
+    height: usize,
+    s: usize,
+    pixels: &mut [T],
+    scratch: &mut StripCoverage<T>,
+) {
+    let (row0, rows) = strip_rows(s, height);
+    let base = base.map(T::from_f32);
+    for px in pixels.chunks_exact_mut(3) {
+        px.copy_from_slice(&base);
+    }
+    scratch.prepare(width);
+    let stride = width + 2;
+    for (path, fp) in paths.iter().zip(&flat.paths) {
+        if fp.verts.is_empty() || path.opacity <= 0.0 || !meets_strip(fp.bbox, row0, rows, width) {
+            continue;
+        }
+        let verts = &flat.verts[fp.verts.clone()];
+        raster::accumulate(
+            verts,
+            row0 as i32,
+            rows,
+            width,
+            &mut scratch.delta,
+            &mut scratch.spans,
+        );
+        let (op, c) = (T::from_f32(path.opacity), path.color.map(T::from_f32));
+        for r in 0..rows {
+            let span = scratch.spans[r];
+            if span.len() == 0 {
+                continue;
+            }
+            let out = &mut pixels[r * width * 3..(r + 1) * width * 3];
+            raster::prefix_row(
+                &mut scratch.delta[r * stride..(r + 1) * stride],
+                span,
+                width,
+                |x, acc| {
+                    let a = acc.abs().min(T::ONE) * op;
+                    let p = &mut out[3 * x..3 * x + 3];
+                    p[0] += a * (c[0] - p[0]);
+                    p[1] += a * (c[1] - p[1]);
+                    p[2] += a * (c[2] - p[2]);
+                },
+            );
+        }
     }
 }

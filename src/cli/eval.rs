@@ -1,0 +1,386 @@
+//! `covec eval`: runs each image at each budget with each method, writes one CSV row per run and
+//! prints a summary table of means per image class (the image's parent directory).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use clap::Args as ClapArgs;
+
+use covec::eval::{self, Quality};
+use covec::imageio::{self, InputError, Limits};
+use covec::pipeline::stage::StageContext;
+use covec::pipeline::{self, Inputs, Masks, Mode, Params, Quiet};
+use covec::render::Image;
+use covec::scene::Scene;
+use covec::svg::{self, SvgOptions};
+
+/// Measure covec (and baselines) on a set of images: MSE, PSNR, SSIM, size, time, memory.
+#[derive(ClapArgs, Debug)]
+pub struct Args {
+    /// Image files, or directories searched recursively for PNG, JPEG and WebP files.
+    #[arg(required = true, value_name = "DIR|IMAGE")]
+    pub inputs: Vec<PathBuf>,
+    /// Path budgets to run, comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "16,32,64,128",
+        value_name = "N,..."
+    )]
+    pub paths: Vec<u32>,
+    /// Methods to run, comma-separated: covec (auto mode), covec-photo, covec-simple, random
+    /// (random paths, reconstruction loss only, same budget and iteration count).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "covec,random",
+        value_name = "M,..."
+    )]
+    pub method: Vec<Method>,
+    /// Where to write the CSV (one row per run). Default: standard output.
+    #[arg(long, value_name = "results.csv")]
+    pub out: Option<PathBuf>,
+    /// Working size (long side), as for `covec vectorize`.
+    #[arg(long, default_value_t = 512, value_name = "PX")]
+    pub max_size: u32,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Multiplies every stage's iteration count (e.g. 0.5 for a quicker, rougher eval).
+    #[arg(long, default_value_t = 1.0, value_name = "F")]
+    pub iteration_scale: f32,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Method {
+    Covec,
+    CovecPhoto,
+    CovecSimple,
+    Random,
+}
+
+impl Method {
+    fn name(self) -> &'static str {
+        match self {
+            Method::Covec => "covec",
+            Method::CovecPhoto => "covec-photo",
+            Method::CovecSimple => "covec-simple",
+            Method::Random => "random",
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Input { path: PathBuf, source: InputError },
+    #[error("{path}: {source}")]
+    Pipeline {
+        path: PathBuf,
+        source: pipeline::Error,
+    },
+    #[error("cannot write {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("no images found in the given inputs")]
+    NoImages,
+}
+
+/// One run's measurements.
+struct Row {
+    image: String,
+    class: String,
+    method: &'static str,
+    mode: &'static str,
+    budget: u32,
+    paths: [usize; 3],
+    segments: usize,
+    svg_bytes: usize,
+    quality: Quality,
+    seconds: f64,
+    peak_mb: Option<f64>,
+}
+
+const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,seconds,peak_mb";
+
+impl Row {
+    fn csv(&self) -> String {
+        format!(
+            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.3},{}",
+            self.image,
+            self.class,
+            self.method,
+            self.mode,
+            self.budget,
+            self.paths[0],
+            self.paths[1],
+            self.paths[2],
+            self.segments,
+            self.svg_bytes,
+            self.quality.mse,
+            self.quality.psnr,
+            self.quality.ssim,
+            self.seconds,
+            self.peak_mb.map(|m| format!("{m:.1}")).unwrap_or_default(),
+        )
+    }
+}
+
+pub fn run(args: &Args) -> Result<(), Error> {
+    let mut images = Vec::new();
+    for input in &args.inputs {
+        collect_images(input, &mut images)?;
+    }
+    images.sort();
+    if images.is_empty() {
+        return Err(Error::NoImages);
+    }
+    let mut csv = String::from(CSV_HEADER);
+    csv.push('\n');
+    let mut rows = Vec::new();
+    let total = images.len() * args.paths.len() * args.method.len();
+    for image_path in &images {
+        let bytes = std::fs::read(image_path).map_err(|source| Error::Read {
+            path: image_path.clone(),
+            source,
+        })?;
+        for &budget in &args.paths {
+            for &method in &args.method {
+                let row = run_one(image_path, &bytes, method, budget, args)?;
+                eprintln!(
+                    "[{}/{total}] {} {} {} paths: MSE {:.5}, PSNR {:.2}, SSIM {:.4}, {:.1} s, {} MB",
+                    rows.len() + 1,
+                    row.image,
+                    row.method,
+                    budget,
+                    row.quality.mse,
+                    row.quality.psnr,
+                    row.quality.ssim,
+                    row.seconds,
+                    row.peak_mb
+                        .map(|m| format!("{m:.0}"))
+                        .unwrap_or_else(|| "?".into()),
+                );
+                csv.push_str(&row.csv());
+                csv.push('\n');
+                rows.push(row);
+            }
+        }
+    }
+    match &args.out {
+        Some(path) => std::fs::write(path, &csv).map_err(|source| Error::Write {
+            path: path.clone(),
+            source,
+        })?,
+        None => print!("{csv}"),
+    }
+    eprint!("{}", summary(&rows));
+    Ok(())
+}
+
+fn run_one(
+    path: &Path,
+    bytes: &[u8],
+    method: Method,
+    budget: u32,
+    args: &Args,
+) -> Result<Row, Error> {
+    let input_error = |source| Error::Input {
+        path: path.to_path_buf(),
+        source,
+    };
+    let pipeline_error = |source| Error::Pipeline {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut params = Params {
+        paths: budget,
+        max_size: args.max_size,
+        seed: args.seed,
+        ..Params::default()
+    };
+    let scale = |n: u32| ((n as f32 * args.iteration_scale).round() as u32).max(u32::from(n > 0));
+    let it = &mut params.iterations;
+    (it.structure, it.reconstruction, it.refine, it.polish) = (
+        scale(it.structure),
+        scale(it.reconstruction),
+        scale(it.refine),
+        scale(it.polish),
+    );
+
+    eval::reset_peak_memory();
+    let started = Instant::now();
+    let image = imageio::decode_image(bytes, &Limits::default()).map_err(input_error)?;
+    let (w, h) = covec::decompose::working_size(image.width(), image.height(), args.max_size);
+    let target = working_image(&image, w, h);
+    let cancel = AtomicBool::new(false);
+    let (scene, mode): (Scene, Mode) = match method {
+        Method::Random => {
+            let ctx = StageContext {
+                observer: &Quiet,
+                cancel: &cancel,
+                started,
+                stage_count: 1,
+            };
+            let mut scene =
+                eval::random_baseline(&target, &params, &ctx).map_err(pipeline_error)?;
+            (scene.original_width, scene.original_height) = (image.width(), image.height());
+            (scene, Mode::Simple)
+        }
+        _ => {
+            params.mode = match method {
+                Method::CovecPhoto => Mode::Photo,
+                Method::CovecSimple => Mode::Simple,
+                _ => Mode::Auto,
+            };
+            let inputs = Inputs {
+                image,
+                albedo: None,
+                masks: Masks::None,
+            };
+            let output =
+                pipeline::run(&inputs, &params, &Quiet, &cancel).map_err(pipeline_error)?;
+            (output.scene, output.mode)
+        }
+    };
+    let svg_bytes = svg::to_svg(&scene, &SvgOptions::default()).len();
+    let seconds = started.elapsed().as_secs_f64();
+    let peak_mb = eval::peak_memory_bytes().map(|b| b as f64 / (1024.0 * 1024.0));
+    let quality = eval::quality(&pipeline::composite(&scene), &target);
+    Ok(Row {
+        image: path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        class: path
+            .parent()
+            .and_then(Path::file_name)
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        method: method.name(),
+        mode: match mode {
+            Mode::Simple => "simple",
+            Mode::Photo => "photo",
+            Mode::Auto => "auto",
+        },
+        budget,
+        paths: [
+            scene.albedo.paths.len(),
+            scene.shade.paths.len(),
+            scene.light.paths.len(),
+        ],
+        segments: scene.segment_count(),
+        svg_bytes,
+        quality,
+        seconds,
+        peak_mb,
+    })
+}
+
+/// The image at working size, as the pipeline sees it (triangle filter, values in [0, 1]).
+fn working_image(image: &image::DynamicImage, w: u32, h: u32) -> Image {
+    let rgb = imageio::to_rgb_image(image);
+    if (rgb.width, rgb.height) == (w as usize, h as usize) {
+        return rgb;
+    }
+    let buffer = image::Rgb32FImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data)
+        .expect("same size");
+    let small = image::imageops::resize(&buffer, w, h, image::imageops::FilterType::Triangle);
+    Image {
+        width: w as usize,
+        height: h as usize,
+        data: small
+            .into_raw()
+            .into_iter()
+            .map(|v| v.clamp(0.0, 1.0))
+            .collect(),
+    }
+}
+
+fn collect_images(path: &Path, out: &mut Vec<PathBuf>) -> Result<(), Error> {
+    if path.is_dir() {
+        let entries = std::fs::read_dir(path).map_err(|source| Error::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        for entry in entries {
+            let entry = entry.map_err(|source| Error::Read {
+                path: path.to_path_buf(),
+                source,
+            })?;
+            collect_images(&entry.path(), out)?;
+        }
+    } else {
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        if matches!(ext.as_str(), "png" | "jpg" | "jpeg" | "webp") {
+            out.push(path.to_path_buf());
+        } else if !path.exists() {
+            return Err(Error::Read {
+                path: path.to_path_buf(),
+                source: std::io::ErrorKind::NotFound.into(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Markdown table of means per class, method and budget, plus an "all" row per method and budget.
+fn summary(rows: &[Row]) -> String {
+    let mut keys: Vec<(String, &'static str, u32)> = Vec::new();
+    for r in rows {
+        for class in [r.class.clone(), "all".to_string()] {
+            let key = (class, r.method, r.budget);
+            if !keys.contains(&key) {
+                keys.push(key);
+            }
+        }
+    }
+    keys.sort_by(|a, b| {
+        (a.0 == "all")
+            .cmp(&(b.0 == "all"))
+            .then(a.0.cmp(&b.0))
+            .then(a.2.cmp(&b.2))
+            .then(a.1.cmp(b.1))
+    });
+    let mut out = String::from(
+        "\n| class | method | paths | n | MSE | PSNR | SSIM | segments | SVG KB | seconds (median) | peak MB (max) |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for (class, method, budget) in keys {
+        let group: Vec<&Row> = rows
+            .iter()
+            .filter(|r| {
+                (class == "all" || r.class == class) && r.method == method && r.budget == budget
+            })
+            .collect();
+        let n = group.len() as f64;
+        let mean = |f: &dyn Fn(&Row) -> f64| group.iter().map(|r| f(r)).sum::<f64>() / n;
+        let mut seconds: Vec<f64> = group.iter().map(|r| r.seconds).collect();
+        seconds.sort_by(f64::total_cmp);
+        let median = seconds[seconds.len() / 2];
+        let peak = group.iter().filter_map(|r| r.peak_mb).fold(0.0, f64::max);
+        let _ = writeln!(
+            out,
+            "| {class} | {method} | {budget} | {} | {:.5} | {:.2} | {:.4} | {:.0} | {:.1} | {:.1} | {:.0} |",
+            group.len(),
+            mean(&|r| f64::from(r.quality.mse)),
+            mean(&|r| f64::from(r.quality.psnr)),
+            mean(&|r| f64::from(r.quality.ssim)),
+            mean(&|r| r.segments as f64),
+            mean(&|r| r.svg_bytes as f64 / 1024.0),
+            median,
+            peak,
+        );
+    }
+    out
+}

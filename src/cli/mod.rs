@@ -1,0 +1,5 @@
+//! The `covec` subcommands: each one's arguments and logic live in its own module.
+
+pub mod eval;
+pub mod serve;
+pub mod vectorize;

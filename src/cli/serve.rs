@@ -1,0 +1,134 @@
+//! `covec serve`: run the HTTP vectorisation service.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::Args;
+
+use covec::service::queue::QueueConfig;
+use covec::service::submit::InputLimits;
+use covec::service::{self, Config};
+
+/// Every option also reads an environment variable (shown in `--help`); flags win.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Address to listen on.
+    #[arg(long, env = "COVEC_ADDR", default_value = "127.0.0.1:8080")]
+    addr: SocketAddr,
+    /// Directory for the job database and results (created if missing).
+    #[arg(long, env = "COVEC_DATA_DIR", default_value = "covec-data")]
+    data_dir: PathBuf,
+    /// Jobs run at once; the pipeline threads are shared out among them.
+    #[arg(long, env = "COVEC_WORKERS", default_value_t = 1)]
+    workers: usize,
+    /// Pipeline threads in total [default: number of cores].
+    #[arg(long, env = "COVEC_THREADS")]
+    threads: Option<usize>,
+    /// Most jobs waiting for a worker; more get 503 with Retry-After.
+    #[arg(long, env = "COVEC_MAX_QUEUED", default_value_t = 64)]
+    max_queued: usize,
+    /// Largest request body, in bytes.
+    #[arg(long, env = "COVEC_MAX_BODY_BYTES", default_value_t = 32 << 20)]
+    max_body_bytes: u64,
+    /// Largest image (also albedo, masks, label map), in pixels.
+    #[arg(long, env = "COVEC_MAX_PIXELS", default_value_t = 16_000_000)]
+    max_pixels: u64,
+    /// Most masks per job.
+    #[arg(long, env = "COVEC_MAX_MASKS", default_value_t = 256)]
+    max_masks: usize,
+    /// Largest `params.paths`.
+    #[arg(long, env = "COVEC_MAX_PATHS", default_value_t = 1024)]
+    max_paths: u32,
+    /// Largest `params.max_size` (working size, long side).
+    #[arg(long, env = "COVEC_MAX_SIZE", default_value_t = 1024)]
+    max_size: u32,
+    /// Largest total iteration budget of one job.
+    #[arg(long, env = "COVEC_MAX_ITERATIONS", default_value_t = 5000)]
+    max_iterations: u64,
+    /// Wall-clock limit of one job, in seconds; then it fails with code `time-limit`.
+    #[arg(long, env = "COVEC_JOB_TIME_LIMIT", default_value_t = 600)]
+    job_time_limit: u64,
+    /// How long results are kept after a job ends, in seconds.
+    #[arg(long, env = "COVEC_RETENTION", default_value_t = 86_400)]
+    retention: u64,
+    /// Accepted API keys, comma-separated; none means no authentication.
+    #[arg(
+        long,
+        env = "COVEC_API_KEYS",
+        value_delimiter = ',',
+        hide_env_values = true
+    )]
+    api_keys: Vec<String>,
+    /// Origins allowed by CORS, comma-separated; `*` allows any.
+    #[arg(long, env = "COVEC_CORS_ORIGINS", value_delimiter = ',')]
+    cors_origins: Vec<String>,
+    /// Seconds running jobs may finish after SIGTERM before they are re-queued for the next start.
+    #[arg(long, env = "COVEC_SHUTDOWN_GRACE", default_value_t = 30)]
+    shutdown_grace: u64,
+}
+
+impl ServeArgs {
+    fn config(self) -> Config {
+        let defaults = QueueConfig::default();
+        Config {
+            addr: self.addr,
+            data_dir: self.data_dir,
+            queue: QueueConfig {
+                workers: self.workers,
+                threads: self.threads.unwrap_or(defaults.threads),
+                max_queued: self.max_queued,
+                job_time_limit: Duration::from_secs(self.job_time_limit),
+                retention: Duration::from_secs(self.retention),
+            },
+            limits: InputLimits {
+                max_body_bytes: self.max_body_bytes,
+                max_pixels: self.max_pixels,
+                max_masks: self.max_masks,
+                max_paths: self.max_paths,
+                max_size: self.max_size,
+                max_iterations: self.max_iterations,
+            },
+            api_keys: self
+                .api_keys
+                .into_iter()
+                .filter(|key| !key.is_empty())
+                .collect(),
+            cors_origins: self
+                .cors_origins
+                .into_iter()
+                .filter(|origin| !origin.is_empty())
+                .collect(),
+            shutdown_grace: Duration::from_secs(self.shutdown_grace),
+        }
+    }
+}
+
+pub fn run(args: ServeArgs) -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("COVEC_LOG")
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,tower_http=info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let runtime = match tokio::runtime::Runtime::new() {
+        Ok(runtime) => runtime,
+        Err(error) => {
+            eprintln!("covec serve: cannot start the async runtime: {error}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = runtime.block_on(service::serve(args.config(), |addr| {
+        // The one line on stdout: scripts (and the integration tests) read the bound address.
+        println!("covec serve: listening on http://{addr}");
+    }));
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("covec serve: {error}");
+            ExitCode::FAILURE
+        }
+    }
+}

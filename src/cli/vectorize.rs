@@ -1,0 +1,308 @@
+//! `covec vectorize`: an image (plus optional albedo map and masks) to a layered SVG.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::AtomicBool;
+
+use clap::Args as ClapArgs;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use covec::imageio::{self, InputError, Limits};
+use covec::pipeline::{self, Inputs, Masks, Mode, Observer, Params, Progress};
+use covec::render::Image;
+use covec::scene::LayerKind;
+use covec::svg::{self, SvgOptions};
+
+/// Vectorize an image into a layered SVG (albedo × shade + light).
+#[derive(ClapArgs, Debug)]
+pub struct Args {
+    /// The image: PNG, JPEG or WebP; 8 or 16 bit; grey, RGB or RGBA (alpha is composited over white).
+    pub input: PathBuf,
+    /// Where to write the layered SVG. Default: the input path with the extension `.svg`.
+    #[arg(short, long, value_name = "OUT.svg")]
+    pub output: Option<PathBuf>,
+    /// Where to write the JSON scene (layers → paths → points, colour, opacity), which the
+    /// service and editor load back losslessly. Default: the SVG path with the extension `.json`.
+    #[arg(long, value_name = "SCENE.json")]
+    pub json: Option<PathBuf>,
+    /// An albedo map with the image's aspect ratio, e.g. from an intrinsic-decomposition
+    /// network. Default: a classical Retinex-style estimate.
+    #[arg(long, value_name = "A.png")]
+    pub albedo: Option<PathBuf>,
+    /// A directory of binary mask images (0 and one other value), one per segment, e.g. from
+    /// SAM; read in file-name order. Default: covec segments the albedo map itself.
+    #[arg(long, value_name = "DIR", conflicts_with = "labels")]
+    pub masks: Option<PathBuf>,
+    /// One label-map image: each distinct value is a segment. Alternative to --masks.
+    #[arg(long, value_name = "L.png")]
+    pub labels: Option<PathBuf>,
+    /// Total path budget over all layers, base path included (8-1024).
+    #[arg(long, default_value_t = 64, value_name = "N")]
+    pub paths: u32,
+    /// photo: albedo, shade and light layers; simple: albedo only, for emoji, icons and flat
+    /// artwork; auto: simple when at least half of the image is flat colour, else photo.
+    #[arg(long, value_enum, default_value_t = Mode::Auto)]
+    pub mode: Mode,
+    /// Working size: the long side is scaled down to this many pixels, never up (16-4096).
+    /// The SVG keeps the original size through its viewBox.
+    #[arg(long, default_value_t = 512, value_name = "PX")]
+    pub max_size: u32,
+    /// Seed for every random choice of the optimisation stages (initialisation itself is
+    /// deterministic); equal inputs and seed give byte-identical output.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Write preview PNGs of each stage (input, albedo map, masks, layers, composite) here.
+    #[arg(long, value_name = "DIR")]
+    pub previews: Option<PathBuf>,
+    /// Also write each layer as a standalone SVG here (albedo.svg, shade.svg, light.svg).
+    #[arg(long, value_name = "DIR")]
+    pub layers: Option<PathBuf>,
+    /// Refuse images (and masks) of more pixels than this.
+    #[arg(long, default_value_t = Limits::default().max_pixels, value_name = "N")]
+    pub max_pixels: u64,
+    /// Refuse more masks (files in --masks, or distinct values in --labels) than this.
+    #[arg(long, default_value_t = Limits::default().max_masks, value_name = "N")]
+    pub max_masks: usize,
+}
+
+/// Why `covec vectorize` failed; printed as one line.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Input { path: PathBuf, source: InputError },
+    #[error("{path}: no mask images (.png, .jpg, .jpeg, .webp) in this directory")]
+    NoMasks { path: PathBuf },
+    #[error(transparent)]
+    Pipeline(#[from] pipeline::Error),
+    #[error("cannot write {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+pub fn run(args: &Args) -> Result<(), Error> {
+    let limits = Limits {
+        max_pixels: args.max_pixels,
+        max_masks: args.max_masks,
+    };
+    let decode = |path: &Path| -> Result<image::DynamicImage, Error> {
+        let bytes = read(path)?;
+        imageio::decode_image(&bytes, &limits).map_err(|source| Error::Input {
+            path: path.into(),
+            source,
+        })
+    };
+    let image = decode(&args.input)?;
+    let albedo = args.albedo.as_deref().map(decode).transpose()?;
+    let masks = if let Some(dir) = &args.masks {
+        Masks::Binary(read_mask_dir(dir, &limits)?)
+    } else if let Some(path) = &args.labels {
+        let bytes = read(path)?;
+        Masks::Labels(
+            imageio::decode_labels(&bytes, &limits).map_err(|source| Error::Input {
+                path: path.clone(),
+                source,
+            })?,
+        )
+    } else {
+        Masks::None
+    };
+    let params = Params {
+        paths: args.paths,
+        mode: args.mode,
+        max_size: args.max_size,
+        seed: args.seed,
+        ..Params::default()
+    };
+    let observer = CliObserver::new(args.previews.clone());
+    if let Some(dir) = &args.previews {
+        create_dir(dir)?;
+    }
+    let output = pipeline::run(
+        &Inputs {
+            image,
+            albedo,
+            masks,
+        },
+        &params,
+        &observer,
+        &AtomicBool::new(false),
+    );
+    observer.finish();
+    if let Some(error) = observer.write_error.into_inner().expect("not poisoned") {
+        return Err(error);
+    }
+    let output = output?;
+
+    let svg_path = args
+        .output
+        .clone()
+        .unwrap_or_else(|| args.input.with_extension("svg"));
+    let json_path = args
+        .json
+        .clone()
+        .unwrap_or_else(|| svg_path.with_extension("json"));
+    let options = SvgOptions::default();
+    write(&svg_path, svg::to_svg(&output.scene, &options).as_bytes())?;
+    let json = serde_json::to_string_pretty(&output.scene).expect("a scene always serialises");
+    write(&json_path, json.as_bytes())?;
+    if let Some(dir) = &args.layers {
+        create_dir(dir)?;
+        for kind in LayerKind::ALL {
+            let path = dir.join(format!("{}.svg", kind.name()));
+            write(
+                &path,
+                svg::layer_to_svg(&output.scene, kind, &options).as_bytes(),
+            )?;
+        }
+    }
+    if std::io::stderr().is_terminal() {
+        let scene = &output.scene;
+        eprintln!(
+            "{}: {:?} mode, {} paths ({} albedo, {} shade, {} light), {} segments",
+            svg_path.display(),
+            output.mode,
+            scene.path_count(),
+            scene.albedo.paths.len(),
+            scene.shade.paths.len(),
+            scene.light.paths.len(),
+            scene.segment_count()
+        );
+    }
+    Ok(())
+}
+
+fn read(path: &Path) -> Result<Vec<u8>, Error> {
+    std::fs::read(path).map_err(|source| Error::Read {
+        path: path.into(),
+        source,
+    })
+}
+
+fn write(path: &Path, bytes: &[u8]) -> Result<(), Error> {
+    std::fs::write(path, bytes).map_err(|source| Error::Write {
+        path: path.into(),
+        source,
+    })
+}
+
+fn create_dir(dir: &Path) -> Result<(), Error> {
+    std::fs::create_dir_all(dir).map_err(|source| Error::Write {
+        path: dir.into(),
+        source,
+    })
+}
+
+/// The image files of a directory, in file-name order, decoded as binary masks.
+fn read_mask_dir(dir: &Path, limits: &Limits) -> Result<Vec<image::GrayImage>, Error> {
+    let entries = std::fs::read_dir(dir).map_err(|source| Error::Read {
+        path: dir.into(),
+        source,
+    })?;
+    let mut paths = Vec::new();
+    for entry in entries {
+        let path = entry
+            .map_err(|source| Error::Read {
+                path: dir.into(),
+                source,
+            })?
+            .path();
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg" | "webp")) {
+            paths.push(path);
+        }
+    }
+    if paths.is_empty() {
+        return Err(Error::NoMasks { path: dir.into() });
+    }
+    paths.sort();
+    let files = paths
+        .iter()
+        .map(|p| Ok((p.display().to_string(), read(p)?)))
+        .collect::<Result<Vec<_>, Error>>()?;
+    imageio::decode_masks(
+        files
+            .iter()
+            .map(|(name, bytes)| (name.as_str(), bytes.as_slice())),
+        limits,
+    )
+    .map_err(|source| Error::Input {
+        path: dir.into(),
+        source,
+    })
+}
+
+/// A progress bar on a terminal (silent otherwise), and preview PNGs into a directory.
+struct CliObserver {
+    bar: Option<ProgressBar>,
+    previews: Option<PathBuf>,
+    /// The first preview that could not be written; reported after the run.
+    write_error: Mutex<Option<Error>>,
+}
+
+impl CliObserver {
+    fn new(previews: Option<PathBuf>) -> Self {
+        let bar = std::io::stderr().is_terminal().then(|| {
+            let bar = ProgressBar::new(1);
+            bar.set_style(
+                ProgressStyle::with_template("{elapsed_precise} [{bar:30}] stage {msg}")
+                    .expect("valid template"),
+            );
+            bar
+        });
+        Self {
+            bar,
+            previews,
+            write_error: Mutex::new(None),
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+impl Observer for CliObserver {
+    fn progress(&self, p: &Progress) {
+        if let Some(bar) = &self.bar {
+            let total = u64::from(p.stage_count) * 1000;
+            let within = if p.iterations > 0 {
+                u64::from(p.iteration) * 1000 / u64::from(p.iterations)
+            } else {
+                0
+            };
+            bar.set_length(total);
+            bar.set_position(u64::from(p.stage_index) * 1000 + within);
+            let loss = p.loss.map(|l| format!(", loss {l:.5}")).unwrap_or_default();
+            bar.set_message(format!(
+                "{}/{} {} {}/{}{loss}",
+                p.stage_index + 1,
+                p.stage_count,
+                p.stage,
+                p.iteration,
+                p.iterations
+            ));
+        }
+    }
+
+    fn preview(&self, name: &str, image: &Image) {
+        let Some(dir) = &self.previews else { return };
+        let path = dir.join(format!("{name}.png"));
+        if let Err(source) = std::fs::write(&path, imageio::encode_png(image)) {
+            let mut slot = self.write_error.lock().expect("not poisoned");
+            slot.get_or_insert(Error::Write { path, source });
+        }
+    }
+}

@@ -1,0 +1,280 @@
+//! Binary masks on the working canvas: a bitset with its area and bounding box.
+
+use crate::geom::contour;
+use crate::scene::Point;
+
+/// A set of canvas pixels. Cheap intersection counts (64 pixels per word) keep the pairwise
+/// tests of mask organisation fast.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Mask {
+    width: usize,
+    height: usize,
+    words: Vec<u64>,
+    area: usize,
+    /// `[x0, y0, x1, y1)`; all zero when empty.
+    bbox: [usize; 4],
+}
+
+impl Mask {
+    /// The empty mask.
+    pub fn empty(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            words: vec![0; (width * height).div_ceil(64)],
+            area: 0,
+            bbox: [0; 4],
+        }
+    }
+
+    /// The whole canvas.
+    pub fn full(width: usize, height: usize) -> Self {
+        Self::from_fn(width, height, |_, _| true)
+    }
+
+    /// The pixels where `inside(x, y)` holds.
+    pub fn from_fn(
+        width: usize,
+        height: usize,
+        mut inside: impl FnMut(usize, usize) -> bool,
+    ) -> Self {
+        let mut mask = Self::empty(width, height);
+        for y in 0..height {
+            for x in 0..width {
+                if inside(x, y) {
+                    mask.words[(y * width + x) / 64] |= 1 << ((y * width + x) % 64);
+                }
+            }
+        }
+        mask.recount();
+        mask
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Number of pixels in the mask.
+    pub fn area(&self) -> usize {
+        self.area
+    }
+
+    /// `[x0, y0, x1, y1)`, all zero when empty.
+    pub fn bbox(&self) -> [usize; 4] {
+        self.bbox
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.area == 0
+    }
+
+    pub fn contains(&self, x: usize, y: usize) -> bool {
+        let i = y * self.width + x;
+        self.words[i / 64] >> (i % 64) & 1 == 1
+    }
+
+    /// Whether pixel `i = y * width + x` is in the mask.
+    pub fn contains_index(&self, i: usize) -> bool {
+        self.words[i / 64] >> (i % 64) & 1 == 1
+    }
+
+    /// Pixel indices (`y * width + x`) in raster order.
+    pub fn indices(&self) -> impl Iterator<Item = usize> + '_ {
+        self.words.iter().enumerate().flat_map(|(w, &word)| {
+            let mut bits = word;
+            std::iter::from_fn(move || {
+                (bits != 0).then(|| {
+                    let b = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    w * 64 + b
+                })
+            })
+        })
+    }
+
+    /// |self ∩ other|.
+    pub fn intersection_area(&self, other: &Mask) -> usize {
+        let [ax0, ay0, ax1, ay1] = self.bbox;
+        let [bx0, by0, bx1, by1] = other.bbox;
+        if self.is_empty()
+            || other.is_empty()
+            || ax0.max(bx0) >= ax1.min(bx1)
+            || ay0.max(by0) >= ay1.min(by1)
+        {
+            return 0;
+        }
+        let first = ay0.max(by0) * self.width / 64;
+        let last = (ay1.min(by1) * self.width).div_ceil(64);
+        self.words[first..last]
+            .iter()
+            .zip(&other.words[first..last])
+            .map(|(a, b)| (a & b).count_ones() as usize)
+            .sum()
+    }
+
+    /// Removes every pixel of `other`.
+    pub fn subtract(&mut self, other: &Mask) {
+        for (a, b) in self.words.iter_mut().zip(&other.words) {
+            *a &= !b;
+        }
+        self.recount();
+    }
+
+    /// The mask with every hole (background not 4-connected to the canvas border) filled.
+    pub fn fill_holes(&self) -> Mask {
+        if self.is_empty() {
+            return self.clone();
+        }
+        // Flood the background from a one-pixel frame around the bounding box.
+        let [x0, y0, x1, y1] = self.bbox;
+        let (fw, fh) = (x1 - x0 + 2, y1 - y0 + 2);
+        let inside = |fx: usize, fy: usize| {
+            (1..fw - 1).contains(&fx)
+                && (1..fh - 1).contains(&fy)
+                && self.contains(fx - 1 + x0, fy - 1 + y0)
+        };
+        let mut outside = vec![false; fw * fh];
+        let mut stack = vec![(0usize, 0usize)];
+        outside[0] = true;
+        while let Some((fx, fy)) = stack.pop() {
+            let neighbours = [
+                (fx.wrapping_sub(1), fy),
+                (fx + 1, fy),
+                (fx, fy.wrapping_sub(1)),
+                (fx, fy + 1),
+            ];
+            for (nx, ny) in neighbours {
+                if nx < fw && ny < fh && !outside[ny * fw + nx] && !inside(nx, ny) {
+                    outside[ny * fw + nx] = true;
+                    stack.push((nx, ny));
+                }
+            }
+        }
+        let mut filled = self.clone();
+        for y in y0..y1 {
+            for x in x0..x1 {
+                if !outside[(y - y0 + 1) * fw + (x - x0 + 1)] {
+                    let i = y * self.width + x;
+                    filled.words[i / 64] |= 1 << (i % 64);
+                }
+            }
+        }
+        filled.recount();
+        filled
+    }
+
+    /// The 4-connected components of at least `min_area` pixels, largest first (ties in raster
+    /// order of their first pixel).
+    pub fn components(&self, min_area: usize) -> Vec<Mask> {
+        let mut label = vec![u32::MAX; self.width * self.height];
+        let mut components = Vec::new();
+        for start in self.indices() {
+            if label[start] != u32::MAX {
+                continue;
+            }
+            let id = components.len() as u32;
+            let mut component = Mask::empty(self.width, self.height);
+            let mut stack = vec![start];
+            label[start] = id;
+            while let Some(i) = stack.pop() {
+                component.words[i / 64] |= 1 << (i % 64);
+                let (x, y) = (i % self.width, i / self.width);
+                let mut visit = |j: usize| {
+                    if label[j] == u32::MAX && self.contains_index(j) {
+                        label[j] = id;
+                        stack.push(j);
+                    }
+                };
+                if x > 0 {
+                    visit(i - 1);
+                }
+                if x + 1 < self.width {
+                    visit(i + 1);
+                }
+                if y > 0 {
+                    visit(i - self.width);
+                }
+                if y + 1 < self.height {
+                    visit(i + self.width);
+                }
+            }
+            component.recount();
+            components.push(component);
+        }
+        components.retain(|c| c.area >= min_area);
+        // Stable: equal areas keep the raster order of their first pixel.
+        components.sort_by_key(|c| std::cmp::Reverse(c.area));
+        components
+    }
+
+    /// The outer boundary (as pixel-edge midpoints, clockwise on screen) of the 4-connected
+    /// component holding the mask's first pixel in raster order; empty for an empty mask.
+    pub fn outer_boundary(&self) -> Vec<Point> {
+        let Some(first) = self.indices().next() else {
+            return Vec::new();
+        };
+        let (w, h) = (self.width as i64, self.height as i64);
+        let start = ((first % self.width) as i64, (first / self.width) as i64);
+        contour::trace_outer_boundary(start, |x, y| {
+            (0..w).contains(&x) && (0..h).contains(&y) && self.contains(x as usize, y as usize)
+        })
+    }
+
+    fn recount(&mut self) {
+        self.area = self.words.iter().map(|w| w.count_ones() as usize).sum();
+        let mut bbox = [usize::MAX, usize::MAX, 0, 0];
+        if self.area > 0 {
+            for y in 0..self.height {
+                let row_start = y * self.width;
+                let row_has = |x: usize| self.contains_index(row_start + x);
+                if let Some(x0) = (0..self.width).find(|&x| row_has(x)) {
+                    let x1 = (0..self.width)
+                        .rev()
+                        .find(|&x| row_has(x))
+                        .expect("row has a pixel")
+                        + 1;
+                    bbox = [bbox[0].min(x0), bbox[1].min(y), bbox[2].max(x1), y + 1];
+                }
+            }
+        } else {
+            bbox = [0; 4];
+        }
+        self.bbox = bbox;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_ring_fills_to_a_square_and_splits_from_a_far_dot() {
+        let ring =
+            |x: usize, y: usize| (2..7).contains(&x) && (2..7).contains(&y) && !(x == 4 && y == 4);
+        let mask = Mask::from_fn(10, 10, |x, y| ring(x, y) || (x, y) == (9, 9));
+        assert_eq!(mask.area(), 25);
+        let filled = mask.fill_holes();
+        assert_eq!(filled.area(), 26);
+        let parts = filled.components(1);
+        assert_eq!(
+            parts.iter().map(Mask::area).collect::<Vec<_>>(),
+            vec![25, 1]
+        );
+        assert_eq!(parts[0].bbox(), [2, 2, 7, 7]);
+        assert_eq!(filled.components(2).len(), 1);
+    }
+
+    #[test]
+    fn intersections_count_shared_pixels() {
+        let a = Mask::from_fn(100, 3, |x, _| x < 70);
+        let b = Mask::from_fn(100, 3, |x, y| x >= 60 && y == 1);
+        assert_eq!(a.intersection_area(&b), 10);
+        let mut c = a.clone();
+        c.subtract(&b);
+        assert_eq!(c.area(), 200);
+    }
+}

@@ -1,0 +1,371 @@
+//! The init stage (paper Sec. 4.2): masks → organised back-to-front groups → closed cubic paths
+//! with flat fills, within the structure share of the path budget.
+//!
+//! Photo mode: albedo paths from the albedo masks (the bottom one the full canvas), filled with
+//! the mean albedo of their visible part; illumination paths from region-wise binarisation
+//! inside the albedo regions, filled with the mean of image / albedo, clamped to [0, 1]. The
+//! illumination layer lives in `Scene::shade` until the split stage moves highlights to
+//! `Scene::light`, so the light layer starts empty.
+//!
+//! Simple mode (paper Appendix C.2): albedo only; segmentation masks and binarisation masks both
+//! seed albedo paths, filled with the mean image colour.
+
+use super::{Error, Mode, Params};
+use crate::decompose::binarize::binarize;
+use crate::decompose::mask::Mask;
+use crate::decompose::organize::organize;
+use crate::decompose::segment::Candidate;
+use crate::decompose::{Decomposition, channel_sums, min_mask_area};
+use crate::geom::contour::simplify_closed;
+use crate::render::Image;
+use crate::scene::{LayerKind, Path, Scene};
+
+/// A structure path and the mask it was built from (the structure loss's target).
+#[derive(Clone, Debug)]
+pub struct MaskedPath {
+    /// Index of the path in its layer's `paths`.
+    pub path: usize,
+    pub mask: Mask,
+}
+
+/// One layer's structure paths as back-to-front groups: masks within a group barely overlap,
+/// and a mask contained in another sits in a higher group. Paint order is group by group.
+#[derive(Clone, Debug)]
+pub struct LayerGroups {
+    pub layer: LayerKind,
+    pub groups: Vec<Vec<MaskedPath>>,
+}
+
+impl LayerGroups {
+    /// Number of structure paths in the layer.
+    pub fn path_count(&self) -> usize {
+        self.groups.iter().map(Vec::len).sum()
+    }
+}
+
+/// How the path budget is shared out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Budget {
+    /// All paths the output may hold (`Params::paths`).
+    pub total: usize,
+    /// Most albedo structure paths, base path included.
+    pub albedo: usize,
+    /// Most illumination structure paths (0 in simple mode).
+    pub illumination: usize,
+}
+
+/// Share of the budget for structure paths, both layers together (LayerVec's 0.4); the rest is
+/// left to the refinement stage.
+pub const STRUCTURE_SHARE: f32 = 0.4;
+/// Share of the structure paths that go to the albedo layer in photo mode.
+pub const ALBEDO_SHARE: f32 = 0.6;
+
+impl Budget {
+    pub fn new(total: usize, mode: Mode) -> Self {
+        let structure = ((total as f32 * STRUCTURE_SHARE) as usize).clamp(1, total);
+        let albedo = match mode {
+            Mode::Simple => structure,
+            _ => ((structure as f32 * ALBEDO_SHARE).ceil() as usize).clamp(1, structure),
+        };
+        Self {
+            total,
+            albedo,
+            illumination: structure - albedo,
+        }
+    }
+}
+
+/// Everything the later stages need: the scene so far, the targets, and the structure groups.
+#[derive(Clone, Debug)]
+pub struct InitState {
+    pub scene: Scene,
+    /// The image at working size.
+    pub target: Image,
+    /// The albedo map at working size (the target itself in simple mode).
+    pub albedo_map: Image,
+    /// Albedo structure paths (in `scene.albedo`).
+    pub albedo: LayerGroups,
+    /// Illumination structure paths (in `scene.shade`); no groups in simple mode.
+    pub illumination: LayerGroups,
+    pub mode: Mode,
+    pub budget: Budget,
+}
+
+/// Douglas-Peucker tolerance in pixels: 1 px per 256 px of long side, at least 1 (LayerVec
+/// uses 5 px at 512²; finer keeps small features for the 2-decimal SVG at no path cost).
+pub fn simplify_tolerance(width: usize, height: usize) -> f32 {
+    (width.max(height) as f32 / 256.0).max(1.0)
+}
+
+/// The init stage.
+pub fn run(
+    decomposition: Decomposition,
+    params: &Params,
+    original: (u32, u32),
+) -> Result<InitState, Error> {
+    let Decomposition {
+        target,
+        albedo: albedo_map,
+        candidates,
+        mode,
+        ..
+    } = decomposition;
+    let (w, h) = (target.width, target.height);
+    let budget = Budget::new(params.paths as usize, mode);
+    let min_area = min_mask_area(w, h);
+    let mut scene = Scene::new(w as u32, h as u32, original.0, original.1);
+
+    let mut albedo_masks = select(&candidates, budget.albedo, true, w, h);
+    let mut illumination_masks = Vec::new();
+    if budget.albedo > 1 || mode == Mode::Photo {
+        let regions = visible_parts(&albedo_masks, w, h);
+        let shadows = sorted(binarize(&target, &regions, min_area));
+        match mode {
+            Mode::Simple => {
+                let mut all = candidates.clone();
+                all.extend(shadows);
+                albedo_masks = select(&sorted(all), budget.albedo, true, w, h);
+            }
+            _ => illumination_masks = select(&shadows, budget.illumination, false, w, h),
+        }
+    }
+
+    let albedo = build_layer(LayerKind::Albedo, &albedo_masks, &mut scene, |visible| {
+        mean_colour(&albedo_map, visible)
+    });
+    let illumination = build_layer(
+        LayerKind::Shade,
+        &illumination_masks,
+        &mut scene,
+        |visible| mean_ratio(&target, &albedo_map, visible).map(|c| c.map(|v| v.clamp(0.0, 1.0))),
+    );
+    if mode != Mode::Simple {
+        fit_fills(&mut scene, &target, &albedo, &illumination);
+    }
+    Ok(InitState {
+        scene,
+        target,
+        albedo_map,
+        albedo,
+        illumination,
+        mode,
+        budget,
+    })
+}
+
+/// Rounds of [`fit_fills`].
+pub const FILL_FIT_ROUNDS: usize = 3;
+
+/// Refits the photo-mode fills so that albedo × illumination matches the target: alternating
+/// least squares on the masks' visible parts, starting from the paper's fills (mean albedo,
+/// mean image / albedo). Each round sets every albedo fill to Σ I·S / Σ S² over its pixels,
+/// then every illumination fill to Σ I·A / Σ A², per channel, clamped to [0, 1]. Pixels under
+/// no illumination path keep S = 1, which pins the scale between the two layers.
+fn fit_fills(scene: &mut Scene, target: &Image, albedo: &LayerGroups, illumination: &LayerGroups) {
+    let (w, h) = (target.width, target.height);
+    let albedo_owner = owner_map(albedo, w, h);
+    let shade_owner = owner_map(illumination, w, h);
+    for _ in 0..FILL_FIT_ROUNDS {
+        let shade = |i: usize, c: usize, scene: &Scene| {
+            shade_owner[i].map_or(1.0, |k| scene.shade.paths[k].color[c])
+        };
+        let fitted = least_squares(&albedo_owner, scene.albedo.paths.len(), target, |i, c| {
+            shade(i, c, scene)
+        });
+        apply(&mut scene.albedo.paths, fitted);
+        let albedo_at =
+            |i: usize, c: usize| albedo_owner[i].map_or(1.0, |k| scene.albedo.paths[k].color[c]);
+        let fitted = least_squares(&shade_owner, scene.shade.paths.len(), target, albedo_at);
+        apply(&mut scene.shade.paths, fitted);
+    }
+}
+
+/// Per path and channel, the factor x minimising Σ (I − x·other)² over the path's pixels;
+/// `None` where the path owns no pixel.
+fn least_squares(
+    owner: &[Option<usize>],
+    paths: usize,
+    target: &Image,
+    other: impl Fn(usize, usize) -> f32,
+) -> Vec<Option<[f32; 3]>> {
+    let mut num = vec![[0f64; 3]; paths];
+    let mut den = vec![[0f64; 3]; paths];
+    for (i, k) in owner.iter().enumerate() {
+        let Some(k) = *k else { continue };
+        for c in 0..3 {
+            let o = f64::from(other(i, c));
+            num[k][c] += f64::from(target.data[3 * i + c]) * o;
+            den[k][c] += o * o;
+        }
+    }
+    (0..paths)
+        .map(|k| {
+            (den[k][0] > 0.0).then(|| [0, 1, 2].map(|c| (num[k][c] / den[k][c].max(1e-9)) as f32))
+        })
+        .collect()
+}
+
+fn apply(paths: &mut [Path], fitted: Vec<Option<[f32; 3]>>) {
+    for (path, colour) in paths.iter_mut().zip(fitted) {
+        if let Some(colour) = colour {
+            path.color = colour.map(|v| v.clamp(0.0, 1.0));
+        }
+    }
+}
+
+/// The path painted last at each pixel (by mask), if any.
+fn owner_map(layer: &LayerGroups, w: usize, h: usize) -> Vec<Option<usize>> {
+    let mut owner = vec![None; w * h];
+    for masked in layer.groups.iter().flatten() {
+        for i in masked.mask.indices() {
+            owner[i] = Some(masked.path);
+        }
+    }
+    owner
+}
+
+fn sorted(mut candidates: Vec<Candidate>) -> Vec<Candidate> {
+    // Stable, so equal gains keep their order and runs are reproducible.
+    candidates.sort_by(|a, b| b.gain.total_cmp(&a.gain));
+    candidates
+}
+
+/// Organised groups of the most useful candidates, at most `cap` masks in all; with
+/// `with_canvas`, the full canvas is the bottom mask and counts towards `cap`. Candidates that
+/// organisation drops as duplicates free their slot for the next ones.
+fn select(
+    candidates: &[Candidate],
+    cap: usize,
+    with_canvas: bool,
+    w: usize,
+    h: usize,
+) -> Vec<Vec<Mask>> {
+    let mut masks: Vec<Mask> = if with_canvas {
+        vec![Mask::full(w, h)]
+    } else {
+        Vec::new()
+    };
+    let mut next = 0;
+    loop {
+        let groups = organize(&masks);
+        let kept: usize = groups.iter().map(Vec::len).sum();
+        if kept >= cap || next >= candidates.len() {
+            let mut budget = cap;
+            return groups
+                .into_iter()
+                .map(|g| {
+                    let take = g.len().min(budget);
+                    budget -= take;
+                    // Within a group keep the earliest-chosen (most useful) masks.
+                    let mut g = g;
+                    g.sort_unstable();
+                    g.truncate(take);
+                    g.into_iter().map(|i| masks[i].clone()).collect::<Vec<_>>()
+                })
+                .filter(|g| !g.is_empty())
+                .collect();
+        }
+        let want = cap - kept;
+        let end = (next + want).min(candidates.len());
+        masks.extend(candidates[next..end].iter().map(|c| c.mask.clone()));
+        next = end;
+    }
+}
+
+/// Each mask's visible part when the groups are painted bottom to top.
+fn visible_parts(groups: &[Vec<Mask>], w: usize, h: usize) -> Vec<Mask> {
+    let masks: Vec<&Mask> = groups.iter().flatten().collect();
+    let mut owner = vec![usize::MAX; w * h];
+    for (k, m) in masks.iter().enumerate() {
+        for i in m.indices() {
+            owner[i] = k;
+        }
+    }
+    (0..masks.len())
+        .map(|k| Mask::from_fn(w, h, |x, y| owner[y * w + x] == k))
+        .collect()
+}
+
+/// Paths for the organised masks of one layer, filled by `fill(visible part)`.
+fn build_layer(
+    layer: LayerKind,
+    groups: &[Vec<Mask>],
+    scene: &mut Scene,
+    fill: impl Fn(&Mask) -> Option<[f32; 3]>,
+) -> LayerGroups {
+    let (w, h) = (scene.width as usize, scene.height as usize);
+    let tolerance = simplify_tolerance(w, h);
+    let visible = visible_parts(groups, w, h);
+    let mut out = LayerGroups {
+        layer,
+        groups: Vec::new(),
+    };
+    let mut k = 0;
+    for group in groups {
+        let mut built = Vec::new();
+        for mask in group {
+            let part = if visible[k].is_empty() {
+                mask
+            } else {
+                &visible[k]
+            };
+            k += 1;
+            let Some(colour) = fill(part).or_else(|| fill(mask)) else {
+                continue;
+            };
+            let Some(path) = path_from_mask(mask, tolerance, colour) else {
+                continue;
+            };
+            let paths = &mut scene.layer_mut(layer).paths;
+            paths.push(path);
+            built.push(MaskedPath {
+                path: paths.len() - 1,
+                mask: mask.clone(),
+            });
+        }
+        if !built.is_empty() {
+            out.groups.push(built);
+        }
+    }
+    out
+}
+
+/// A closed path around a mask's outer boundary (Douglas-Peucker simplified, straight cubics);
+/// the full canvas becomes the exact canvas rectangle.
+pub fn path_from_mask(mask: &Mask, tolerance: f32, colour: [f32; 3]) -> Option<Path> {
+    let (w, h) = (mask.width(), mask.height());
+    if mask.area() == w * h {
+        return Some(Path::rect(0.0, 0.0, w as f32, h as f32, colour, 1.0));
+    }
+    let polygon = simplify_closed(&mask.outer_boundary(), tolerance);
+    if polygon.len() < 3 {
+        return None;
+    }
+    Path::from_polygon(&polygon, colour, 1.0)
+}
+
+fn mean_colour(image: &Image, mask: &Mask) -> Option<[f32; 3]> {
+    if mask.is_empty() {
+        return None;
+    }
+    let sum = channel_sums(image, mask.indices());
+    Some(sum.map(|s| (s / mask.area() as f64) as f32))
+}
+
+/// Mean of `numerator / denominator` per channel (denominator floored at 1/255).
+fn mean_ratio(numerator: &Image, denominator: &Image, mask: &Mask) -> Option<[f32; 3]> {
+    if mask.is_empty() {
+        return None;
+    }
+    let mut sum = [0f64; 3];
+    for i in mask.indices() {
+        let (n, d) = (
+            &numerator.data[3 * i..3 * i + 3],
+            &denominator.data[3 * i..3 * i + 3],
+        );
+        for ((s, &n), &d) in sum.iter_mut().zip(n).zip(d) {
+            *s += f64::from(n / d.max(1.0 / 255.0));
+        }
+    }
+    Some(sum.map(|s| (s / mask.area() as f64) as f32))
+}

@@ -1,0 +1,102 @@
+//! Final polish (beyond the paper): a short joint optimisation of all three layers under the exact
+//! model a browser shows, `clamp01(R(A)·R(S) + R(L))`, with every value in its SVG range, so the
+//! file is optimal for what is displayed rather than for the unclamped two-layer model.
+
+use super::Error;
+use super::stage::{Canvas, Stage, StageContext};
+use crate::optim::loss::mse;
+use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
+use crate::render::Image;
+use crate::render::composite::{svg_model, svg_model_backward};
+use crate::scene::{LayerKind, Scene};
+
+/// Adam of the polish: half the paper's rates, since the layers are already close.
+pub fn polish_settings() -> AdamSettings {
+    AdamSettings::default().scaled(0.5)
+}
+
+/// Runs `iterations` joint steps and returns the MSE of the SVG model before and after.
+pub fn polish(
+    scene: &mut Scene,
+    target: &Image,
+    iterations: u32,
+    settings: AdamSettings,
+    ctx: &StageContext,
+    stage: Stage,
+) -> Result<[f32; 2], Error> {
+    let (w, h) = (target.width, target.height);
+    let mut canvas = Canvas::new(w, h);
+    let mut adams: Vec<Adam> = LayerKind::ALL
+        .iter()
+        .map(|_| Adam::new(settings, Bounds::canvas(w, h, 1.0)))
+        .collect();
+    // Files hold [0, 1] values: bring any illumination colour into range first.
+    for kind in LayerKind::ALL {
+        for path in &mut scene.layer_mut(kind).paths {
+            Bounds::canvas(w, h, 1.0).project(path);
+        }
+    }
+    let mut layers = [Image::default(), Image::default(), Image::default()];
+    let mut d_layers = [Image::default(), Image::default(), Image::default()];
+    let (mut composite, mut d_composite) = (Image::default(), Image::default());
+    let mut grads = Vec::new();
+    let initial = render_all(
+        &mut canvas,
+        scene,
+        target,
+        &mut layers,
+        &mut composite,
+        &mut d_composite,
+    );
+    let mut loss = initial;
+    for it in 0..iterations {
+        let [d_a, d_s, d_l] = &mut d_layers;
+        svg_model_backward(
+            &layers[0],
+            &layers[1],
+            &layers[2],
+            &d_composite,
+            d_a,
+            d_s,
+            d_l,
+        );
+        for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
+            let paths = &mut scene.layer_mut(kind).paths;
+            reset_grads(&mut grads, paths);
+            canvas
+                .raster
+                .backward(paths, kind.base(), &d_layers[k], &mut grads);
+            adams[k].step(paths, &grads);
+        }
+        loss = render_all(
+            &mut canvas,
+            scene,
+            target,
+            &mut layers,
+            &mut composite,
+            &mut d_composite,
+        );
+        ctx.iteration(stage, it + 1, iterations, Some(loss))?;
+    }
+    ctx.preview(stage, "composite", &composite);
+    for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
+        ctx.preview(stage, kind.name(), &layers[k]);
+    }
+    Ok([initial, loss])
+}
+
+/// Renders the three layers and the SVG composite; returns the MSE and writes its gradient.
+fn render_all(
+    canvas: &mut Canvas,
+    scene: &Scene,
+    target: &Image,
+    layers: &mut [Image; 3],
+    composite: &mut Image,
+    d_composite: &mut Image,
+) -> f32 {
+    for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
+        canvas.render_layer(scene, kind, &mut layers[k]);
+    }
+    svg_model(&layers[0], &layers[1], &layers[2], composite);
+    mse(composite, target, d_composite)
+}

@@ -1,0 +1,428 @@
+//! Refinement (paper Sec. 4.4, LIVE / LayerVec path addition): with everything else frozen, new
+//! paths are added to one layer where the reconstruction error is high, trained alone, then
+//! pruned and merged, for a few rounds, until the path budget is used exactly.
+//!
+//! The photo mode refines the illumination layer (`scene.shade`, multiplied onto the fixed
+//! albedo); the simple mode refines the albedo layer itself (the illumination is empty, i.e. 1).
+
+use super::Error;
+use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, high_error_regions};
+use super::stage::{Canvas, Stage, StageContext};
+use crate::optim::loss::mse;
+use crate::optim::rng::Rng;
+use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
+use crate::render::Image;
+use crate::render::composite::{product, product_backward};
+use crate::scene::{LayerKind, Path, Scene};
+
+/// Settings of the refinement.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RefineSettings {
+    /// Adam for the new paths. Default: points 1.0, colours and opacities 0.01 (paper).
+    pub adam: AdamSettings,
+    /// Share of the remaining budget added in each round but the last (which adds the rest).
+    /// Default 0.6 (LayerVec).
+    pub round_share: f32,
+    /// A new path is pruned when removing it changes the composite by at most this much, summed
+    /// over pixels × channels, per 512² pixels (scaled to the working size). Default 7.0 (LayerVec).
+    pub prune_threshold: f32,
+    /// Two new paths merge when they overlap on at least `merge_overlap` pixels and their
+    /// colours + opacities differ by at most `merge_color_l1` (L1). Defaults 3 and 0.1 (LayerVec).
+    pub merge_overlap: usize,
+    pub merge_color_l1: f32,
+    /// Smallest semi-axis of a new path, in pixels. Default 1.5.
+    pub min_radius: f32,
+}
+
+impl Default for RefineSettings {
+    fn default() -> Self {
+        Self {
+            adam: AdamSettings::default(),
+            round_share: 0.6,
+            prune_threshold: 7.0,
+            merge_overlap: 3,
+            merge_color_l1: 0.1,
+            min_radius: 1.5,
+        }
+    }
+}
+
+/// Which layer grows, and the colour range of its paths.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Growth {
+    /// `Shade` (the illumination layer before separation) or `Albedo` (simple mode).
+    pub layer: LayerKind,
+    pub color_max: f32,
+}
+
+/// Runs up to `rounds` rounds of `iterations` each and returns the reconstruction loss
+/// ‖I − R(A)·R(I)‖² before and after. Afterwards `scene.path_count() == budget` unless the scene already held more.
+#[allow(clippy::too_many_arguments)]
+pub fn refine(
+    scene: &mut Scene,
+    target: &Image,
+    growth: Growth,
+    budget: usize,
+    rounds: u32,
+    iterations: u32,
+    settings: &RefineSettings,
+    seed: u64,
+    ctx: &StageContext,
+    stage: Stage,
+) -> Result<[f32; 2], Error> {
+    let (w, h) = (target.width, target.height);
+    let mut canvas = Canvas::new(w, h);
+    let mut rng = Rng::new(seed, 0x5245_4649);
+    let other = match growth.layer {
+        LayerKind::Albedo => LayerKind::Shade,
+        _ => LayerKind::Albedo,
+    };
+    // The frozen factor the growing layer is multiplied with.
+    let mut factor = Image::default();
+    canvas.render_layer(scene, other, &mut factor);
+    let bounds = Bounds::canvas(w, h, growth.color_max);
+    let total_iterations = rounds * iterations;
+    let mut frozen = Image::default();
+    let mut grown = Image::default();
+    let mut composite = Image::default();
+    canvas.render_layer(scene, growth.layer, &mut grown);
+    product(&grown, &factor, &mut composite);
+    let initial = crate::optim::loss::mse_value(&composite, target);
+
+    for round in 0..rounds {
+        let remaining = budget.saturating_sub(scene.path_count());
+        if remaining == 0 {
+            break;
+        }
+        let last = round + 1 == rounds;
+        let count = if last {
+            remaining
+        } else {
+            ((settings.round_share * remaining as f32) as usize).max(1)
+        };
+
+        canvas.render_layer(scene, growth.layer, &mut frozen);
+        product(&frozen, &factor, &mut composite);
+        let error: Vec<f32> = composite
+            .data
+            .chunks_exact(3)
+            .zip(target.data.chunks_exact(3))
+            .map(|(p, t)| (0..3).map(|c| (p[c] - t[c]) * (p[c] - t[c])).sum())
+            .collect();
+        let regions = high_error_regions(&error, w, h, count);
+        let mut new_paths: Vec<Path> = regions
+            .iter()
+            .filter_map(|r| region_path(r, target, &factor, w, settings, growth.color_max))
+            .collect();
+        while new_paths.len() < count {
+            new_paths.push(random_path(
+                &mut rng,
+                target,
+                &factor,
+                w,
+                h,
+                growth.color_max,
+            ));
+        }
+
+        let base_iteration = round * iterations;
+        train(
+            &mut canvas,
+            &mut new_paths,
+            &frozen,
+            &factor,
+            target,
+            iterations,
+            settings,
+            bounds,
+            |it, loss| ctx.iteration(stage, base_iteration + it, total_iterations, Some(loss)),
+        )?;
+
+        if !last {
+            prune(
+                &mut canvas,
+                &mut new_paths,
+                &frozen,
+                &factor,
+                settings,
+                w * h,
+            );
+            let merged = merge(&mut canvas, &mut new_paths, settings);
+            if merged > 0 {
+                // Train only the merged paths (on top), over everything else.
+                let keep = new_paths.len() - merged;
+                let mut below = Image::default();
+                canvas.render_over(&new_paths[..keep], &frozen, &mut below);
+                let mut merged_paths = new_paths.split_off(keep);
+                let report = base_iteration + iterations;
+                train(
+                    &mut canvas,
+                    &mut merged_paths,
+                    &below,
+                    &factor,
+                    target,
+                    iterations / 2,
+                    settings,
+                    bounds,
+                    |_, loss| ctx.iteration(stage, report, total_iterations, Some(loss)),
+                )?;
+                new_paths.extend(merged_paths);
+            }
+        }
+        scene.layer_mut(growth.layer).paths.extend(new_paths);
+    }
+
+    canvas.render_layer(scene, growth.layer, &mut grown);
+    product(&grown, &factor, &mut composite);
+    let loss = crate::optim::loss::mse_value(&composite, target);
+    ctx.preview(stage, "composite", &composite);
+    ctx.preview(
+        stage,
+        if growth.layer == LayerKind::Albedo {
+            "albedo"
+        } else {
+            "illumination"
+        },
+        &grown,
+    );
+    Ok([initial, loss])
+}
+
+/// Trains `paths`, painted over `backdrop` and multiplied by `factor`, against `target`.
+#[allow(clippy::too_many_arguments)]
+fn train(
+    canvas: &mut Canvas,
+    paths: &mut [Path],
+    backdrop: &Image,
+    factor: &Image,
+    target: &Image,
+    iterations: u32,
+    settings: &RefineSettings,
+    bounds: Bounds,
+    mut report: impl FnMut(u32, f32) -> Result<(), Error>,
+) -> Result<(), Error> {
+    let mut adam = Adam::new(settings.adam, bounds);
+    let (mut layer, mut composite, mut d_composite) =
+        (Image::default(), Image::default(), Image::default());
+    let (mut d_layer, mut d_factor) = (Image::default(), Image::default());
+    let mut grads = Vec::new();
+    for it in 0..iterations {
+        canvas.render_over(paths, backdrop, &mut layer);
+        product(&layer, factor, &mut composite);
+        let loss = mse(&composite, target, &mut d_composite);
+        product_backward(&layer, factor, &d_composite, &mut d_layer, &mut d_factor);
+        reset_grads(&mut grads, paths);
+        canvas.backward_over(paths, backdrop, &d_layer, &mut grads);
+        adam.step(paths, &grads);
+        report(it + 1, loss)?;
+    }
+    Ok(())
+}
+
+/// The least-squares colour `c` with `factor · c ≈ target` over `pixels`, clamped to `[0, max]`.
+fn fitted_color(
+    pixels: impl Iterator<Item = usize> + Clone,
+    target: &Image,
+    factor: &Image,
+    max: f32,
+) -> [f32; 3] {
+    let mut color = [0.0; 3];
+    for (c, out) in color.iter_mut().enumerate() {
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for p in pixels.clone() {
+            let f = f64::from(factor.data[3 * p + c]);
+            num += f * f64::from(target.data[3 * p + c]);
+            den += f * f;
+        }
+        *out = if den > 1e-9 { (num / den) as f32 } else { 1.0 }.clamp(0.0, max);
+    }
+    color
+}
+
+fn region_path(
+    region: &Region,
+    target: &Image,
+    factor: &Image,
+    width: usize,
+    settings: &RefineSettings,
+    color_max: f32,
+) -> Option<Path> {
+    let ellipse = Ellipse::of_region(region, width, settings.min_radius)?;
+    let color = fitted_color(region.pixels.iter().copied(), target, factor, color_max);
+    Some(ellipse.to_path(REGION_PATH_SEGMENTS, color, 1.0))
+}
+
+/// A small disc at a seeded random position, for when no error region is left (LIVE's fallback).
+fn random_path(
+    rng: &mut Rng,
+    target: &Image,
+    factor: &Image,
+    w: usize,
+    h: usize,
+    color_max: f32,
+) -> Path {
+    let radius = (w.min(h) as f32 * 0.03).max(1.5);
+    let center = crate::scene::Point::new(rng.range(0.0, w as f32), rng.range(0.0, h as f32));
+    let ellipse = Ellipse {
+        center,
+        radii: [radius, radius],
+        angle: 0.0,
+    };
+    let (x, y) = (
+        (center.x as usize).min(w - 1),
+        (center.y as usize).min(h - 1),
+    );
+    let color = fitted_color(std::iter::once(y * w + x), target, factor, color_max);
+    ellipse.to_path(REGION_PATH_SEGMENTS, color, 1.0)
+}
+
+/// Removes (all at once) every new path whose removal changes the composite by at most the prune
+/// threshold (Σ |Δ| over pixels × channels, scaled from 512² to `pixels`).
+fn prune(
+    canvas: &mut Canvas,
+    paths: &mut Vec<Path>,
+    backdrop: &Image,
+    factor: &Image,
+    settings: &RefineSettings,
+    pixels: usize,
+) {
+    if paths.is_empty() {
+        return;
+    }
+    let threshold = settings.prune_threshold * pixels as f32 / (512.0 * 512.0);
+    let (mut full, mut without) = (Image::default(), Image::default());
+    canvas.render_over(paths, backdrop, &mut full);
+    let mut keep = vec![true; paths.len()];
+    let mut others = Vec::with_capacity(paths.len());
+    for i in 0..paths.len() {
+        others.clear();
+        others.extend(
+            paths
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, p)| p.clone()),
+        );
+        canvas.render_over(&others, backdrop, &mut without);
+        let change: f32 = full
+            .data
+            .iter()
+            .zip(&without.data)
+            .zip(&factor.data)
+            .map(|((a, b), f)| ((a - b) * f).abs())
+            .sum();
+        keep[i] = change > threshold;
+    }
+    let mut index = 0;
+    paths.retain(|_| {
+        index += 1;
+        keep[index - 1]
+    });
+}
+
+/// Merges overlapping new paths of nearly the same colour, greedily and transitively; each group
+/// becomes one path (ellipse of the union, coverage-weighted mean colour) appended at the end.
+/// Returns the number of merged paths appended.
+fn merge(canvas: &mut Canvas, paths: &mut Vec<Path>, settings: &RefineSettings) -> usize {
+    let n = paths.len();
+    if n < 2 {
+        return 0;
+    }
+    let coverages: Vec<Vec<(u32, f32)>> = paths.iter().map(|p| canvas.coverage(p)).collect();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    for i in 0..n {
+        for j in i + 1..n {
+            let l1: f32 = (0..3)
+                .map(|c| (paths[i].color[c] - paths[j].color[c]).abs())
+                .sum::<f32>()
+                + (paths[i].opacity - paths[j].opacity).abs();
+            if l1 > settings.merge_color_l1 {
+                continue;
+            }
+            let overlap = solid_overlap(&coverages[i], &coverages[j]);
+            if overlap >= settings.merge_overlap {
+                let (ri, rj) = (root(&mut parent, i), root(&mut parent, j));
+                parent[ri.max(rj)] = ri.min(rj);
+            }
+        }
+    }
+    let mut groups: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for i in 0..n {
+        let r = root(&mut parent, i);
+        groups[r].push(i);
+    }
+    let width = canvas.width;
+    let mut merged = Vec::new();
+    let mut removed = vec![false; n];
+    for group in groups.iter().filter(|g| g.len() > 1) {
+        let mut union = std::collections::BTreeMap::new();
+        for &i in group {
+            for &(p, c) in &coverages[i] {
+                let v = union.entry(p).or_insert(0.0f32);
+                *v = v.max(c);
+            }
+        }
+        let weighted = union.iter().map(|(&p, &c)| {
+            let p = p as usize;
+            ((p % width) as f32 + 0.5, (p / width) as f32 + 0.5, c)
+        });
+        let Some(ellipse) = super::regions::ellipse_for_pixels(weighted, settings.min_radius)
+        else {
+            continue;
+        };
+        let areas: Vec<f32> = group
+            .iter()
+            .map(|&i| coverages[i].iter().map(|&(_, c)| c).sum::<f32>().max(1e-6))
+            .collect();
+        let total: f32 = areas.iter().sum();
+        let mut color = [0.0; 3];
+        let mut opacity = 0.0;
+        for (&i, &a) in group.iter().zip(&areas) {
+            for c in 0..3 {
+                color[c] += paths[i].color[c] * a / total;
+            }
+            opacity += paths[i].opacity * a / total;
+        }
+        let segments = group
+            .iter()
+            .map(|&i| paths[i].segment_count())
+            .max()
+            .unwrap_or(REGION_PATH_SEGMENTS);
+        merged.push(ellipse.to_path(segments, color, opacity));
+        for &i in group {
+            removed[i] = true;
+        }
+    }
+    let mut index = 0;
+    paths.retain(|_| {
+        index += 1;
+        !removed[index - 1]
+    });
+    let count = merged.len();
+    paths.extend(merged);
+    count
+}
+
+/// Pixels where two sparse coverages (sorted by pixel) are both nearly full (sum > 1.9).
+fn solid_overlap(a: &[(u32, f32)], b: &[(u32, f32)]) -> usize {
+    let (mut i, mut j, mut count) = (0, 0, 0);
+    while i < a.len() && j < b.len() {
+        match a[i].0.cmp(&b[j].0) {
+            std::cmp::Ordering::Less => i += 1,
+            std::cmp::Ordering::Greater => j += 1,
+            std::cmp::Ordering::Equal => {
+                count += usize::from(a[i].1 + b[j].1 > 1.9);
+                i += 1;
+                j += 1;
+            }
+        }
+    }
+    count
+}

@@ -1,0 +1,318 @@
+//! Structural optimisation (paper Sec. 4.3): per-layer structure loss, then the shared
+//! reconstruction loss ‖I − R(A)·R(I)‖², with one Adam per layer.
+//!
+//! Until the layer separation, the illumination layer lives in `scene.shade` (both are painted over
+//! white and multiplied onto the albedo); its colours may exceed 1 up to
+//! [`StructureSettings::illumination_cap`].
+
+use super::Error;
+use super::init::LayerGroups;
+use super::stage::{Canvas, Stage, StageContext};
+use crate::decompose::mask::Mask;
+use crate::optim::loss::{mse, overlap_penalty};
+use crate::optim::rng::Rng;
+use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
+use crate::render::composite::{product, product_backward};
+use crate::render::{Image, PathGrad};
+use crate::scene::{LayerKind, Path, Scene};
+
+/// One mask group from the initialisation: paths of one layer, painted in this order, each with
+/// the mask (working size) it was traced from. Masks within a group are (nearly) disjoint;
+/// nested masks go to later groups (LayerVec's back-to-front organisation).
+#[derive(Clone, Debug)]
+pub struct MaskGroup {
+    /// `Albedo`, or `Shade` for the illumination layer.
+    pub layer: LayerKind,
+    /// Indices into the layer's paths, one per mask.
+    pub paths: Vec<usize>,
+    pub masks: Vec<Mask>,
+}
+
+impl MaskGroup {
+    /// The groups of the init stage's layers, in paint order.
+    pub fn from_init(layers: &[LayerGroups]) -> Vec<MaskGroup> {
+        layers
+            .iter()
+            .flat_map(|layer| {
+                layer.groups.iter().map(|group| MaskGroup {
+                    layer: layer.layer,
+                    paths: group.iter().map(|m| m.path).collect(),
+                    masks: group.iter().map(|m| m.mask.clone()).collect(),
+                })
+            })
+            .collect()
+    }
+}
+
+/// Settings of the structure and reconstruction stages.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StructureSettings {
+    /// Adam of each layer. Default: points 1.0, colours and opacities 0.01, betas 0.9/0.9.
+    pub adam: AdamSettings,
+    /// Overlap threshold δ: one layer of 0.3-grey over white gives 0.7 ≥ δ, two give 0.49 < δ.
+    /// Default 178/255 (LayerVec).
+    pub overlap_delta: f32,
+    /// Weight of the overlap term on the *mean* of ReLU(δ − v) over pixels × channels, i.e. the
+    /// paper's λ = weight / (3·W·H) on its sum. Default 0.5: a doubly covered pixel then costs
+    /// 0.104, a third of what a wrongly covered pixel costs the mask term (~0.36 on average),
+    /// so overlaps are discouraged without fighting the masks. The paper's λ = 1e-8 (LayerVec
+    /// 2e-7) on a 512² sum is a weight of 0.008 (0.16) here and would barely act.
+    pub overlap_weight: f32,
+    /// Upper bound of illumination colours. Default 4: enough for highlights on albedo ≥ 0.25.
+    pub illumination_cap: f32,
+}
+
+impl Default for StructureSettings {
+    fn default() -> Self {
+        Self {
+            adam: AdamSettings::default(),
+            overlap_delta: 178.0 / 255.0,
+            overlap_weight: 0.5,
+            illumination_cap: crate::render::composite::ILLUMINATION_CAP,
+        }
+    }
+}
+
+/// Grey translucent fill used to measure overlap within a group (LayerVec: black at alpha 0.3).
+const OVERLAP_OPACITY: f32 = 0.3;
+
+/// Runs `structure_iterations` of the structure loss, then `reconstruction_iterations` of the
+/// reconstruction loss, on the albedo and illumination (`scene.shade`) layers.
+/// Returns the reconstruction loss ‖I − R(A)·R(I)‖² before, after the structure iterations
+/// and at the end.
+#[allow(clippy::too_many_arguments)]
+pub fn optimise_structure(
+    scene: &mut Scene,
+    groups: &[MaskGroup],
+    target: &Image,
+    structure_iterations: u32,
+    reconstruction_iterations: u32,
+    settings: &StructureSettings,
+    seed: u64,
+    ctx: &StageContext,
+    stages: [Stage; 2],
+) -> Result<[f32; 3], Error> {
+    let (w, h) = (target.width, target.height);
+    let mut canvas = Canvas::new(w, h);
+    let mut scratch = Scratch::default();
+    let initial = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
+    let mut adam_albedo = Adam::new(settings.adam, Bounds::canvas(w, h, 1.0));
+    let mut adam_illum = Adam::new(
+        settings.adam,
+        Bounds::canvas(w, h, settings.illumination_cap),
+    );
+
+    let prepared = prepare_groups(scene, groups, w, h, seed)?;
+    let mut grads_a = Vec::new();
+    let mut grads_i = Vec::new();
+    for it in 0..structure_iterations {
+        let mut loss = 0.0;
+        for (kind, adam, grads) in [
+            (LayerKind::Albedo, &mut adam_albedo, &mut grads_a),
+            (LayerKind::Shade, &mut adam_illum, &mut grads_i),
+        ] {
+            let paths = &mut scene.layer_mut(kind).paths;
+            reset_grads(grads, paths);
+            for group in prepared.iter().filter(|g| g.layer == kind) {
+                loss += structure_loss(&mut canvas, paths, group, settings, grads, &mut scratch);
+            }
+            // The structure loss shapes geometry only; colours are fit by the reconstruction.
+            for g in grads.iter_mut() {
+                g.color = [0.0; 3];
+            }
+            adam.step(paths, grads);
+        }
+        ctx.iteration(stages[0], it + 1, structure_iterations, Some(loss))?;
+    }
+    let after_structure = preview_two_layers(&mut canvas, scene, target, ctx, stages[0]);
+
+    let mut loss = after_structure;
+    for it in 0..reconstruction_iterations {
+        reset_grads(&mut grads_a, &scene.albedo.paths);
+        reset_grads(&mut grads_i, &scene.shade.paths);
+        loss = reconstruction_loss(
+            &mut canvas,
+            scene,
+            target,
+            &mut scratch,
+            Some((&mut grads_a, &mut grads_i)),
+        );
+        adam_albedo.step(&mut scene.albedo.paths, &grads_a);
+        adam_illum.step(&mut scene.shade.paths, &grads_i);
+        ctx.iteration(stages[1], it + 1, reconstruction_iterations, Some(loss))?;
+    }
+    if reconstruction_iterations > 0 {
+        loss = preview_two_layers(&mut canvas, scene, target, ctx, stages[1]);
+    }
+    Ok([initial, after_structure, loss])
+}
+
+/// Reusable buffers.
+#[derive(Default)]
+pub(crate) struct Scratch {
+    a: Image,
+    b: Image,
+    c: Image,
+    d_c: Image,
+    d_a: Image,
+    d_b: Image,
+}
+
+/// ‖I − R(A)·R(I)‖² (mean); with `grads`, adds its gradient for the albedo and illumination paths.
+pub(crate) fn reconstruction_loss(
+    canvas: &mut Canvas,
+    scene: &Scene,
+    target: &Image,
+    s: &mut Scratch,
+    grads: Option<(&mut Vec<PathGrad>, &mut Vec<PathGrad>)>,
+) -> f32 {
+    canvas.render_layer(scene, LayerKind::Albedo, &mut s.a);
+    canvas.render_layer(scene, LayerKind::Shade, &mut s.b);
+    product(&s.a, &s.b, &mut s.c);
+    let loss = mse(&s.c, target, &mut s.d_c);
+    if let Some((grads_a, grads_i)) = grads {
+        product_backward(&s.a, &s.b, &s.d_c, &mut s.d_a, &mut s.d_b);
+        canvas.raster.backward(
+            &scene.albedo.paths,
+            LayerKind::Albedo.base(),
+            &s.d_a,
+            grads_a,
+        );
+        canvas
+            .raster
+            .backward(&scene.shade.paths, LayerKind::Shade.base(), &s.d_b, grads_i);
+    }
+    loss
+}
+
+/// Previews the two-layer composite and both layers; returns the reconstruction loss.
+fn preview_two_layers(
+    canvas: &mut Canvas,
+    scene: &Scene,
+    target: &Image,
+    ctx: &StageContext,
+    stage: Stage,
+) -> f32 {
+    let mut s = Scratch::default();
+    let loss = reconstruction_loss(canvas, scene, target, &mut s, None);
+    ctx.preview(stage, "composite", &s.c);
+    ctx.preview(stage, "albedo", &s.a);
+    ctx.preview(stage, "illumination", &s.b);
+    loss
+}
+
+/// A mask group ready for the loss: fixed random colours per path and the coloured mask target.
+struct PreparedGroup {
+    layer: LayerKind,
+    paths: Vec<usize>,
+    colors: Vec<[f32; 3]>,
+    target: Image,
+}
+
+fn prepare_groups(
+    scene: &Scene,
+    groups: &[MaskGroup],
+    w: usize,
+    h: usize,
+    seed: u64,
+) -> Result<Vec<PreparedGroup>, Error> {
+    let mut rng = Rng::new(seed, 0x5354_5255);
+    let mut prepared = Vec::with_capacity(groups.len());
+    for group in groups {
+        let layer_len = scene.layer(group.layer).paths.len();
+        if group.paths.len() != group.masks.len() {
+            return Err(Error::Params("a mask group needs one mask per path".into()));
+        }
+        let mut target = Image::filled(w, h, [0.0; 3]);
+        let mut colors = Vec::with_capacity(group.paths.len());
+        for (&index, mask) in group.paths.iter().zip(&group.masks) {
+            if index >= layer_len {
+                return Err(Error::Params(format!(
+                    "mask group refers to missing path {index}"
+                )));
+            }
+            if mask.width() != w || mask.height() != h {
+                return Err(Error::Params(
+                    "mask size differs from the working size".into(),
+                ));
+            }
+            let color = [
+                rng.range(0.2, 1.0),
+                rng.range(0.2, 1.0),
+                rng.range(0.2, 1.0),
+            ];
+            for i in mask.indices() {
+                for c in 0..3 {
+                    let v = &mut target.data[3 * i + c];
+                    *v = (*v + color[c]).min(1.0);
+                }
+            }
+            colors.push(color);
+        }
+        prepared.push(PreparedGroup {
+            layer: group.layer,
+            paths: group.paths.clone(),
+            colors,
+            target,
+        });
+    }
+    Ok(prepared)
+}
+
+/// Mask term + overlap term of one group; adds point and opacity gradients into `grads`.
+fn structure_loss(
+    canvas: &mut Canvas,
+    paths: &[Path],
+    group: &PreparedGroup,
+    settings: &StructureSettings,
+    grads: &mut [PathGrad],
+    s: &mut Scratch,
+) -> f32 {
+    let colored: Vec<Path> = group
+        .paths
+        .iter()
+        .zip(&group.colors)
+        .map(|(&i, &color)| Path {
+            points: paths[i].points.clone(),
+            color,
+            opacity: paths[i].opacity,
+        })
+        .collect();
+    let mut local = crate::render::PathGrad::zeros_like(&colored);
+    canvas.render(&colored, [0.0; 3], &mut s.a);
+    let mask_loss = mse(&s.a, &group.target, &mut s.d_a);
+    canvas
+        .raster
+        .backward(&colored, [0.0; 3], &s.d_a, &mut local);
+
+    let grey: Vec<Path> = colored
+        .iter()
+        .map(|p| Path {
+            points: p.points.clone(),
+            color: [0.0; 3],
+            opacity: OVERLAP_OPACITY,
+        })
+        .collect();
+    canvas.render(&grey, [1.0; 3], &mut s.b);
+    s.d_b.data.iter_mut().for_each(|v| *v = 0.0);
+    let overlap = overlap_penalty(
+        &s.b,
+        settings.overlap_delta,
+        settings.overlap_weight,
+        &mut s.d_b,
+    );
+    let mut grey_grads = crate::render::PathGrad::zeros_like(&grey);
+    canvas
+        .raster
+        .backward(&grey, [1.0; 3], &s.d_b, &mut grey_grads);
+
+    for ((&i, g), gg) in group.paths.iter().zip(&local).zip(&grey_grads) {
+        let out = &mut grads[i];
+        for ((o, a), b) in out.points.iter_mut().zip(&g.points).zip(&gg.points) {
+            o.x += a.x + b.x;
+            o.y += a.y + b.y;
+        }
+        out.opacity += g.opacity;
+    }
+    mask_loss + overlap
+}

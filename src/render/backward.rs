@@ -1,0 +1,334 @@
+//! The backward pass: dLoss/dPixel → dLoss/d(control points, colour, opacity).
+//!
+//! Work is split into bands of [`STRIP_ROWS`] rows, one rayon task each, and every band writes
+//! its own partial gradients; [`Totals::reduce`] adds them in band order, so the result does not
+//! depend on the thread count. Inside a band, passes of `rows_per_pass` rows:
+//! 1. rasterise every path meeting the pass, keeping its signed area per pixel of its row spans;
+//! 2. per row, composite forwards keeping the colour below each path (never reconstructed by
+//!    division, which breaks down at alpha 1), then walk the paths backwards: colour and
+//!    opacity gradients, and dL/d(signed area) written over the signed area;
+//! 3. push dL/d(signed area) through each path's edges in the pass (see `raster`).
+//!
+//! Memory per pass grows with the paths' overlap, so deep scenes use fewer rows per pass
+//! ([`rows_per_pass`]) to keep the working set in cache.
+
+use super::flatten::FlatScene;
+use super::raster::{self, RowSpan};
+use super::{Image, PathGrad, STRIP_ROWS, StripCoverage, meets_strip, strip_rows};
+use crate::scene::Path;
+
+/// Target size of one pass's signed-area buffer: small enough to stay in a core's L2 cache.
+const PASS_AREA_BYTES: f64 = 1024.0 * 1024.0;
+
+/// `|acc|` up to which coverage counts as unsaturated in the backward. Above 1 the forward's
+/// `min(1, |acc|)` is flat; at exactly 1 (a pixel just fully covered, common with pixel-aligned
+/// shapes) the backward takes the one-sided derivative towards less coverage, and the small
+/// slack keeps prefix-sum rounding (`|acc| = 1 + ulp`) from zeroing it.
+const SATURATION: f32 = 1.0 + 1e-5;
+
+/// Rows per pass: the largest power of two ≤ `STRIP_ROWS` whose signed-area buffer fits
+/// [`PASS_AREA_BYTES`] at the scene's mean overlap depth (sum of clipped bounding-box areas
+/// over the canvas area). A function of the scene only, so results stay thread-count free.
+pub(super) fn rows_per_pass(flat: &FlatScene<f32>, width: usize, height: usize) -> usize {
+    let (w, h) = (width as f32, height as f32);
+    let covered: f64 = flat
+        .paths
+        .iter()
+        .filter(|p| !p.verts.is_empty())
+        .map(|p| {
+            let dx = (p.bbox[2].min(w) - p.bbox[0].max(0.0)).max(0.0);
+            let dy = (p.bbox[3].min(h) - p.bbox[1].max(0.0)).max(0.0);
+            dx as f64 * dy as f64
+        })
+        .sum();
+    let depth = (covered / (width * height) as f64).max(1.0);
+    let fit = PASS_AREA_BYTES / (4.0 * depth * width as f64);
+    let mut rows = STRIP_ROWS;
+    while rows > 1 && rows as f64 > fit {
+        rows /= 2;
+    }
+    rows
+}
+
+/// Partial gradients of one band: one entry per path meeting it, in paint order.
+#[derive(Default)]
+pub(super) struct BandGrads {
+    paths: Vec<PathPartial>,
+    /// dL/d flattened vertex of those paths' vertices, concatenated.
+    verts: Vec<[f32; 2]>,
+}
+
+struct PathPartial {
+    path: u32,
+    /// Start of the path's vertices in [`BandGrads::verts`].
+    verts: u32,
+    color: [f64; 3],
+    opacity: f64,
+}
+
+/// Per-thread buffers of the backward.
+#[derive(Default)]
+pub(super) struct Workspace {
+    /// Band slot of each path (`u32::MAX`: not in the band).
+    slot: Vec<u32>,
+    /// The pass's active paths (band slots), their row spans and signed-area offsets.
+    active: Vec<u32>,
+    spans: Vec<RowSpan>,
+    offsets: Vec<u32>,
+    /// Signed area per active path and span pixel; overwritten by dL/d(signed area).
+    area: Vec<f32>,
+    /// One row: the colour below each active path over its span, stacked in paint order.
+    below: Vec<f32>,
+    row_color: Vec<f32>,
+    row_grad: Vec<f32>,
+}
+
+/// Sums of the band partials, kept between calls.
+#[derive(Default)]
+pub(super) struct Totals {
+    verts: Vec<[f64; 2]>,
+    paint: Vec<([f64; 3], f64)>,
+}
+
+impl Totals {
+    pub fn reduce(&mut self, flat: &FlatScene<f32>, bands: &[BandGrads], path_count: usize) {
+        self.verts.clear();
+        self.verts.resize(flat.verts.len(), [0.0; 2]);
+        self.paint.clear();
+        self.paint.resize(path_count, ([0.0; 3], 0.0));
+        for band in bands {
+            for partial in &band.paths {
+                let i = partial.path as usize;
+                for c in 0..3 {
+                    self.paint[i].0[c] += partial.color[c];
+                }
+                self.paint[i].1 += partial.opacity;
+                let range = flat.paths[i].verts.clone();
+                let start = partial.verts as usize;
+                let src = &band.verts[start..start + range.len()];
+                for (acc, g) in self.verts[range].iter_mut().zip(src) {
+                    acc[0] += g[0] as f64;
+                    acc[1] += g[1] as f64;
+                }
+            }
+        }
+    }
+
+    pub fn add_into(&self, flat: &FlatScene<f32>, grads: &mut [PathGrad]) {
+        for (i, grad) in grads.iter_mut().enumerate().take(self.paint.len()) {
+            for c in 0..3 {
+                grad.color[c] += self.paint[i].0[c] as f32;
+            }
+            grad.opacity += self.paint[i].1 as f32;
+            let range = flat.paths[i].verts.clone();
+            if !range.is_empty() {
+                flat.chain_to_control_points(i, &self.verts[range], &mut grad.points);
+            }
+        }
+    }
+}
+
+/// One band's backward job.
+pub(super) struct Band<'a> {
+    pub flat: &'a FlatScene<f32>,
+    pub paths: &'a [Path],
+    pub base: [f32; 3],
+    pub d_out: &'a Image,
+    pub band: usize,
+    pub rows_per_pass: usize,
+}
+
+impl Band<'_> {
+    pub fn run(&self, out: &mut BandGrads, ws: &mut Workspace, coverage: &mut StripCoverage<f32>) {
+        let (width, height) = (self.d_out.width, self.d_out.height);
+        let (band0, band_rows) = strip_rows(self.band, height);
+        out.paths.clear();
+        out.verts.clear();
+        ws.slot.clear();
+        ws.slot.resize(self.paths.len(), u32::MAX);
+        for (i, fp) in self.flat.paths.iter().enumerate() {
+            if !fp.verts.is_empty() && meets_strip(fp.bbox, band0, band_rows, width) {
+                ws.slot[i] = out.paths.len() as u32;
+                out.paths.push(PathPartial {
+                    path: i as u32,
+                    verts: out.verts.len() as u32,
+                    color: [0.0; 3],
+                    opacity: 0.0,
+                });
+                out.verts.resize(out.verts.len() + fp.verts.len(), [0.0; 2]);
+            }
+        }
+        coverage.prepare(width);
+        let mut row0 = band0;
+        while row0 < band0 + band_rows {
+            let rows = self.rows_per_pass.min(band0 + band_rows - row0);
+            self.pass(row0, rows, out, ws, coverage);
+            row0 += rows;
+        }
+    }
+
+    fn pass(
+        &self,
+        row0: usize,
+        rows: usize,
+        out: &mut BandGrads,
+        ws: &mut Workspace,
+        cov: &mut StripCoverage<f32>,
+    ) {
+        let width = self.d_out.width;
+        let stride = width + 2;
+
+        // 1. Signed areas of every path meeting the pass.
+        ws.active.clear();
+        ws.spans.clear();
+        ws.offsets.clear();
+        let mut total = 0usize;
+        for (i, fp) in self.flat.paths.iter().enumerate() {
+            if fp.verts.is_empty() || !meets_strip(fp.bbox, row0, rows, width) {
+                continue;
+            }
+            ws.active.push(ws.slot[i]);
+            raster::accumulate(
+                &self.flat.verts[fp.verts.clone()],
+                row0 as i32,
+                rows,
+                width,
+                &mut cov.delta,
+                &mut cov.spans,
+            );
+            let first = total;
+            for &span in &cov.spans[..rows] {
+                ws.spans.push(span);
+                ws.offsets.push(total as u32);
+                total += span.len();
+            }
+            if ws.area.len() < total {
+                ws.area.resize(total, 0.0);
+            }
+            let mut off = first;
+            for (r, &span) in cov.spans[..rows].iter().enumerate() {
+                if span.len() == 0 {
+                    continue;
+                }
+                let dst = &mut ws.area[off..off + span.len()];
+                let lo = span.lo as usize;
+                raster::prefix_row(
+                    &mut cov.delta[r * stride..(r + 1) * stride],
+                    span,
+                    width,
+                    |x, acc| dst[x - lo] = acc,
+                );
+                off += span.len();
+            }
+        }
+
+        // 2. Per row: composite forwards keeping the colour below each path, then backwards.
+        ws.row_color.resize(width * 3, 0.0);
+        ws.row_grad.resize(width * 3, 0.0);
+        for r in 0..rows {
+            for px in ws.row_color.chunks_exact_mut(3) {
+                px.copy_from_slice(&self.base);
+            }
+            let mut below_len = 0;
+            for (k, &slot) in ws.active.iter().enumerate() {
+                let span = ws.spans[k * rows + r];
+                if span.len() == 0 {
+                    continue;
+                }
+                let path = &self.paths[out.paths[slot as usize].path as usize];
+                let (op, c) = (path.opacity, path.color);
+                let off = ws.offsets[k * rows + r] as usize;
+                let area = &ws.area[off..off + span.len()];
+                if ws.below.len() < below_len + 3 * span.len() {
+                    ws.below.resize(below_len + 3 * span.len(), 0.0);
+                }
+                let below = &mut ws.below[below_len..below_len + 3 * span.len()];
+                below_len += 3 * span.len();
+                let color = &mut ws.row_color[3 * span.lo as usize..3 * span.end as usize];
+                for ((p, b), &acc) in color
+                    .chunks_exact_mut(3)
+                    .zip(below.chunks_exact_mut(3))
+                    .zip(area)
+                {
+                    b.copy_from_slice(p);
+                    let a = acc.abs().min(1.0) * op;
+                    p[0] += a * (c[0] - p[0]);
+                    p[1] += a * (c[1] - p[1]);
+                    p[2] += a * (c[2] - p[2]);
+                }
+            }
+            let y = row0 + r;
+            ws.row_grad
+                .copy_from_slice(&self.d_out.data[y * width * 3..(y + 1) * width * 3]);
+            for (k, &slot) in ws.active.iter().enumerate().rev() {
+                let span = ws.spans[k * rows + r];
+                if span.len() == 0 {
+                    continue;
+                }
+                let partial = &mut out.paths[slot as usize];
+                let path = &self.paths[partial.path as usize];
+                let (op, c) = (path.opacity, path.color);
+                let off = ws.offsets[k * rows + r] as usize;
+                let area = &mut ws.area[off..off + span.len()];
+                below_len -= 3 * span.len();
+                let below = &ws.below[below_len..below_len + 3 * span.len()];
+                let grad = &mut ws.row_grad[3 * span.lo as usize..3 * span.end as usize];
+                let (mut dc, mut dop) = ([0.0f32; 3], 0.0f32);
+                for ((g, b), acc) in grad
+                    .chunks_exact_mut(3)
+                    .zip(below.chunks_exact(3))
+                    .zip(area.iter_mut())
+                {
+                    let cov = acc.abs().min(1.0);
+                    let a = cov * op;
+                    dc[0] += g[0] * a;
+                    dc[1] += g[1] * a;
+                    dc[2] += g[2] * a;
+                    let da = g[0] * (c[0] - b[0]) + g[1] * (c[1] - b[1]) + g[2] * (c[2] - b[2]);
+                    dop += da * cov;
+                    *acc = if acc.abs() <= SATURATION {
+                        da * op * 1.0f32.copysign(*acc)
+                    } else {
+                        0.0
+                    };
+                    let keep = 1.0 - a;
+                    g[0] *= keep;
+                    g[1] *= keep;
+                    g[2] *= keep;
+                }
+                for (sum, d) in partial.color.iter_mut().zip(dc) {
+                    *sum += d as f64;
+                }
+                partial.opacity += dop as f64;
+            }
+        }
+
+        // 3. dL/d(signed area) through the edges to the flattened vertices.
+        for (k, &slot) in ws.active.iter().enumerate() {
+            let partial = &out.paths[slot as usize];
+            let fp = &self.flat.paths[partial.path as usize];
+            let start = partial.verts as usize;
+            let spans = &ws.spans[k * rows..(k + 1) * rows];
+            let offsets = &ws.offsets[k * rows..(k + 1) * rows];
+            let area = &ws.area;
+            let lookup = |cx: i32, cy: i32| -> f32 {
+                let r = (cy - row0 as i32) as usize;
+                let span = spans[r];
+                let x = cx as u32;
+                if cx >= 0 && x >= span.lo && x < span.end {
+                    area[offsets[r] as usize + (x - span.lo) as usize]
+                } else {
+                    0.0
+                }
+            };
+            raster::backward_lines(
+                &self.flat.verts[fp.verts.clone()],
+                row0 as i32,
+                rows,
+                width,
+                &mut out.verts[start..start + fp.verts.len()],
+                lookup,
+            );
+        }
+    }
+}

@@ -1,0 +1,86 @@
+//! Per-pixel composites of rendered layers, with their backwards.
+//!
+//! - [`product`]: `A · I`, the optimisation-time model (albedo times illumination).
+//! - [`svg_model`]: `clamp01(A · S + L)`, exactly what a browser shows for the albedo layer, a
+//!   `mix-blend-mode: multiply` shade group and a `plus-lighter` light group (all in sRGB values,
+//!   no gamma), so the final polish optimises what users see.
+//!
+//! # Panics
+//! Every function here panics if its images differ in size (a programming error).
+
+use super::Image;
+
+/// Upper bound for illumination colours during optimisation: the product model lets shading
+/// brighten albedo up to 4× (highlights over dark albedo estimates). The optimiser projects
+/// illumination colours into `[0, ILLUMINATION_CAP]` after each step; nothing here clamps.
+pub const ILLUMINATION_CAP: f32 = 4.0;
+
+fn check_same(images: &[&Image]) {
+    let (w, h) = (images[0].width, images[0].height);
+    for im in images {
+        assert!(
+            im.width == w && im.height == h && im.data.len() == w * h * 3,
+            "composite: image sizes differ ({}×{} vs {w}×{h})",
+            im.width,
+            im.height
+        );
+    }
+}
+
+/// `out = a · b` per channel (`out` is resized).
+pub fn product(a: &Image, b: &Image, out: &mut Image) {
+    check_same(&[a, b]);
+    out.resize(a.width, a.height);
+    for ((o, &x), &y) in out.data.iter_mut().zip(&a.data).zip(&b.data) {
+        *o = x * y;
+    }
+}
+
+/// Backward of [`product`]: writes `d_a = d_out · b` and `d_b = d_out · a` (both resized).
+pub fn product_backward(a: &Image, b: &Image, d_out: &Image, d_a: &mut Image, d_b: &mut Image) {
+    check_same(&[a, b, d_out]);
+    d_a.resize(a.width, a.height);
+    d_b.resize(a.width, a.height);
+    for i in 0..a.data.len() {
+        d_a.data[i] = d_out.data[i] * b.data[i];
+        d_b.data[i] = d_out.data[i] * a.data[i];
+    }
+}
+
+/// `out = clamp01(a · s + l)` per channel: albedo, shade (multiply) and light (plus-lighter).
+pub fn svg_model(a: &Image, s: &Image, l: &Image, out: &mut Image) {
+    check_same(&[a, s, l]);
+    out.resize(a.width, a.height);
+    for i in 0..a.data.len() {
+        out.data[i] = (a.data[i] * s.data[i] + l.data[i]).clamp(0.0, 1.0);
+    }
+}
+
+/// Backward of [`svg_model`]: writes `d_a = g·s`, `d_s = g·a`, `d_l = g` where `g = d_out` if
+/// `0 ≤ a·s + l ≤ 1` and 0 where the clamp is active. The bounds count as inside, so a pixel
+/// sitting exactly at white (the common `1 · 1 + 0`) can still be pulled back into range.
+pub fn svg_model_backward(
+    a: &Image,
+    s: &Image,
+    l: &Image,
+    d_out: &Image,
+    d_a: &mut Image,
+    d_s: &mut Image,
+    d_l: &mut Image,
+) {
+    check_same(&[a, s, l, d_out]);
+    for d in [&mut *d_a, &mut *d_s, &mut *d_l] {
+        d.resize(a.width, a.height);
+    }
+    for i in 0..a.data.len() {
+        let v = a.data[i] * s.data[i] + l.data[i];
+        let g = if (0.0..=1.0).contains(&v) {
+            d_out.data[i]
+        } else {
+            0.0
+        };
+        d_a.data[i] = g * s.data[i];
+        d_s.data[i] = g * a.data[i];
+        d_l.data[i] = g;
+    }
+}

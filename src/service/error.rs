@@ -1,0 +1,185 @@
+//! RFC 9457 problem details: the body of every error response, and of a failed job's `error`.
+//!
+//! Each [`ApiError`] variant has a stable `code` (also the last part of `type`), so clients branch
+//! on the code, never on the human-readable `detail`.
+
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::{Deserialize, Serialize};
+
+/// Media type of every error body.
+pub const PROBLEM_JSON: &str = "application/problem+json";
+
+/// A problem details object (RFC 9457) with covec's extensions.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Problem {
+    /// `urn:covec:problem:<code>`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    pub title: String,
+    pub status: u16,
+    pub detail: String,
+    /// Stable machine-readable code.
+    pub code: String,
+    /// The configured limit that was exceeded, when one was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub limit: Option<u64>,
+    /// The measured value that exceeded `limit`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub actual: Option<u64>,
+    /// Seconds to wait before retrying (also sent as `Retry-After`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub retry_after: Option<u64>,
+}
+
+/// Everything a request (or a job) can fail with.
+#[derive(Debug, thiserror::Error)]
+pub enum ApiError {
+    #[error("this server needs `Authorization: Bearer <key>` with a configured API key")]
+    Unauthorized,
+    #[error("no job `{0}`")]
+    JobNotFound(String),
+    #[error("`{0}` is not a job id (expected `job_` followed by 32 lowercase hex digits)")]
+    MalformedJobId(String),
+    #[error("no route for {0}")]
+    RouteNotFound(String),
+    #[error("method {0} is not allowed here")]
+    MethodNotAllowed(String),
+    #[error("no result `{0}` for this job")]
+    ResultNotFound(String),
+    #[error("content type `{0}` is not accepted: send multipart/form-data or application/json")]
+    UnsupportedMediaType(String),
+    #[error("the request body is larger than the limit of {limit} bytes")]
+    BodyTooLarge { limit: u64 },
+    #[error("the image has {actual} pixels, more than the limit of {limit}")]
+    TooManyPixels { limit: u64, actual: u64 },
+    #[error("{actual} masks were sent, more than the limit of {limit}")]
+    TooManyMasks { limit: u64, actual: u64 },
+    #[error("malformed request: {0}")]
+    BadRequest(String),
+    #[error("invalid query: {0}")]
+    BadQuery(String),
+    #[error("the {0} could not be decoded: {1}")]
+    UndecodableImage(&'static str, String),
+    #[error("invalid parameters: {0}")]
+    InvalidParams(String),
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
+    #[error("this Idempotency-Key was used with a different request")]
+    IdempotencyMismatch,
+    #[error("the job queue is full ({0} jobs); retry later")]
+    QueueFull(usize, u64),
+    #[error("the server is shutting down")]
+    ShuttingDown,
+    #[error("job `{0}` has status `{1}`; results exist once it has succeeded")]
+    NotReady(String, &'static str),
+    #[error("the results of job `{0}` were removed after the retention period")]
+    DataRemoved(String),
+    #[error("the job ran longer than the limit of {0} s and was stopped")]
+    TimeLimit(u64),
+    #[error("the pipeline failed unexpectedly: {0}")]
+    PipelineCrashed(String),
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl ApiError {
+    pub fn status(&self) -> StatusCode {
+        use ApiError::*;
+        match self {
+            Unauthorized => StatusCode::UNAUTHORIZED,
+            JobNotFound(_) | RouteNotFound(_) | ResultNotFound(_) => StatusCode::NOT_FOUND,
+            MalformedJobId(_) | BadRequest(_) | BadQuery(_) => StatusCode::BAD_REQUEST,
+            MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
+            UnsupportedMediaType(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            BodyTooLarge { .. } | TooManyPixels { .. } | TooManyMasks { .. } => {
+                StatusCode::PAYLOAD_TOO_LARGE
+            }
+            UndecodableImage(..) | InvalidParams(_) | InvalidInput(_) | IdempotencyMismatch => {
+                StatusCode::UNPROCESSABLE_ENTITY
+            }
+            QueueFull(..) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
+            NotReady(..) => StatusCode::CONFLICT,
+            DataRemoved(_) => StatusCode::GONE,
+            TimeLimit(_) => StatusCode::REQUEST_TIMEOUT,
+            PipelineCrashed(_) | Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+
+    /// The stable code; listed in api/openapi.yaml.
+    pub fn code(&self) -> &'static str {
+        use ApiError::*;
+        match self {
+            Unauthorized => "unauthorized",
+            JobNotFound(_) => "job-not-found",
+            MalformedJobId(_) => "malformed-job-id",
+            RouteNotFound(_) => "route-not-found",
+            MethodNotAllowed(_) => "method-not-allowed",
+            ResultNotFound(_) => "result-not-found",
+            UnsupportedMediaType(_) => "unsupported-media-type",
+            BodyTooLarge { .. } => "body-too-large",
+            TooManyPixels { .. } => "too-many-pixels",
+            TooManyMasks { .. } => "too-many-masks",
+            BadRequest(_) => "bad-request",
+            BadQuery(_) => "bad-query",
+            UndecodableImage(..) => "undecodable-image",
+            InvalidParams(_) => "invalid-params",
+            InvalidInput(_) => "invalid-input",
+            IdempotencyMismatch => "idempotency-key-reused",
+            QueueFull(..) => "queue-full",
+            ShuttingDown => "shutting-down",
+            NotReady(..) => "job-not-succeeded",
+            DataRemoved(_) => "data-removed",
+            TimeLimit(_) => "time-limit",
+            PipelineCrashed(_) => "pipeline-crashed",
+            Internal(_) => "internal",
+        }
+    }
+
+    fn retry_after(&self) -> Option<u64> {
+        match self {
+            ApiError::QueueFull(_, seconds) => Some(*seconds),
+            ApiError::ShuttingDown => Some(5),
+            _ => None,
+        }
+    }
+
+    pub fn problem(&self) -> Problem {
+        let status = self.status();
+        let (limit, actual) = match self {
+            ApiError::TooManyPixels { limit, actual }
+            | ApiError::TooManyMasks { limit, actual } => (Some(*limit), Some(*actual)),
+            ApiError::BodyTooLarge { limit } => (Some(*limit), None),
+            _ => (None, None),
+        };
+        Problem {
+            kind: format!("urn:covec:problem:{}", self.code()),
+            title: status.canonical_reason().unwrap_or("Error").to_owned(),
+            status: status.as_u16(),
+            detail: self.to_string(),
+            code: self.code().to_owned(),
+            limit,
+            actual,
+            retry_after: self.retry_after(),
+        }
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        if self.status().is_server_error() {
+            tracing::error!(code = self.code(), "{self}");
+        } else {
+            tracing::debug!(code = self.code(), "{self}");
+        }
+        let problem = self.problem();
+        let body = serde_json::to_vec(&problem).expect("a problem always serialises");
+        let mut response = (self.status(), body).into_response();
+        let headers = response.headers_mut();
+        headers.insert(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON));
+        if let Some(seconds) = problem.retry_after {
+            headers.insert(header::RETRY_AFTER, HeaderValue::from(seconds));
+        }
+        response
+    }
+}

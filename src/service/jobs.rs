@@ -1,0 +1,325 @@
+//! The job resource: create, read, list, cancel, delete, and its event stream.
+
+use std::convert::Infallible;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Path, Query, Request, State};
+use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::{Extension, Json};
+use futures_util::Stream;
+use serde::Deserialize;
+
+use super::auth::Owner;
+use super::error::ApiError;
+use super::model::{
+    Idempotency, InputManifest, JobRecord, JobView, Status, is_job_id, new_job_id, now_ms,
+};
+use super::queue::{Admission, JobEntry};
+use super::submit::{self, decode_inputs};
+use super::{AppState, Endpoint, endpoint};
+
+pub fn endpoints() -> Vec<Endpoint> {
+    vec![
+        endpoint(Method::POST, "/v1/jobs", create),
+        endpoint(Method::GET, "/v1/jobs", list),
+        endpoint(Method::GET, "/v1/jobs/{id}", get),
+        endpoint(Method::DELETE, "/v1/jobs/{id}", delete),
+        endpoint(Method::POST, "/v1/jobs/{id}/cancel", cancel),
+        endpoint(Method::GET, "/v1/jobs/{id}/events", events),
+    ]
+}
+
+/// The job `id` if it is well-formed, exists and belongs to `owner`.
+pub fn find(state: &AppState, owner: &Owner, id: &str) -> Result<Arc<JobEntry>, ApiError> {
+    if !is_job_id(id) {
+        return Err(ApiError::MalformedJobId(id.to_owned()));
+    }
+    tracing::Span::current().record("job_id", id);
+    state
+        .queue
+        .get(id, &owner.0)
+        .ok_or_else(|| ApiError::JobNotFound(id.to_owned()))
+}
+
+fn view(state: &AppState, entry: &JobEntry) -> JobView {
+    let record = entry.snapshot();
+    let position = if record.status == Status::Queued {
+        state.queue.queue_position(&record.id)
+    } else {
+        None
+    };
+    JobView::new(&record, position)
+}
+
+const IDEMPOTENCY_KEY: &str = "idempotency-key";
+
+async fn create(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    headers: HeaderMap,
+    request: Request,
+) -> Result<Response, ApiError> {
+    state.queue.check_capacity()?;
+    let key = match headers.get(IDEMPOTENCY_KEY) {
+        Some(value) => match value.to_str() {
+            Ok(key) if !key.is_empty() && key.len() <= 255 => Some(key.to_owned()),
+            _ => {
+                return Err(ApiError::BadRequest(
+                    "Idempotency-Key must be 1-255 visible ASCII characters".into(),
+                ));
+            }
+        },
+        None => None,
+    };
+    let submission = submit::read(request, &state.limits).await?;
+    let fingerprint = submission.fingerprint();
+    if let Some(key) = &key
+        && let Some(earlier) = state.queue.find_idempotent(&owner.0, key, &fingerprint)?
+    {
+        return Ok(created(&state, &earlier, true));
+    }
+    // Decoding is CPU work: off the async workers.
+    let limits = state.limits.clone();
+    let submission = tokio::task::spawn_blocking(move || {
+        decode_inputs(
+            &submission.image,
+            submission.albedo.as_deref(),
+            &submission.masks,
+            submission.labels.as_deref(),
+            &limits,
+        )
+        .map(|_| submission)
+    })
+    .await
+    .map_err(|error| ApiError::Internal(error.to_string()))??;
+
+    let id = new_job_id();
+    tracing::Span::current().record("job_id", id.as_str());
+    let mut inputs = vec![("input/image".to_owned(), submission.image)];
+    let manifest = InputManifest {
+        albedo: submission.albedo.is_some(),
+        masks: submission.masks.len(),
+        labels: submission.labels.is_some(),
+    };
+    inputs.extend(
+        submission
+            .albedo
+            .map(|bytes| ("input/albedo".to_owned(), bytes)),
+    );
+    inputs.extend(
+        submission
+            .labels
+            .map(|bytes| ("input/labels".to_owned(), bytes)),
+    );
+    inputs.extend(
+        submission
+            .masks
+            .into_iter()
+            .enumerate()
+            .map(|(i, bytes)| (format!("input/mask-{i}"), bytes)),
+    );
+    let record = JobRecord {
+        id,
+        owner: owner.0.clone(),
+        status: Status::Queued,
+        created_at: now_ms(),
+        started_at: None,
+        completed_at: None,
+        expires_at: None,
+        params: submission.params,
+        inputs: manifest,
+        mode: None,
+        progress: None,
+        previews: Vec::new(),
+        cancel_reason: None,
+        error: None,
+        idempotency: key.map(|key| Idempotency { key, fingerprint }),
+        data_removed: false,
+    };
+    let queue = state.queue.clone();
+    let admission = tokio::task::spawn_blocking(move || queue.admit(record, inputs))
+        .await
+        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    Ok(match admission {
+        Admission::Created(entry) => {
+            tracing::info!("job created");
+            created(&state, &entry, false)
+        }
+        Admission::Replayed(entry) => created(&state, &entry, true),
+    })
+}
+
+/// 201 + `Location` + the job (also for an idempotent replay, marked `Idempotent-Replayed`).
+fn created(state: &AppState, entry: &JobEntry, replayed: bool) -> Response {
+    let view = view(state, entry);
+    let location = HeaderValue::from_str(&view.urls.job).expect("job urls are ASCII");
+    let mut response = (
+        StatusCode::CREATED,
+        [(header::LOCATION, location)],
+        Json(view),
+    )
+        .into_response();
+    if replayed {
+        response
+            .headers_mut()
+            .insert("idempotent-replayed", HeaderValue::from_static("true"));
+    }
+    response
+}
+
+async fn get(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+) -> Result<Json<JobView>, ApiError> {
+    let entry = find(&state, &owner, &id)?;
+    Ok(Json(view(&state, &entry)))
+}
+
+#[derive(Deserialize)]
+struct ListQuery {
+    status: Option<String>,
+    limit: Option<String>,
+    cursor: Option<String>,
+}
+
+const DEFAULT_PAGE: usize = 20;
+const MAX_PAGE: usize = 100;
+
+async fn list(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    query: Result<Query<ListQuery>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
+    let status = query
+        .status
+        .map(|name| {
+            Status::from_name(&name).ok_or_else(|| {
+                ApiError::BadQuery(format!(
+                    "`status` must be queued, running, succeeded, failed or canceled, not `{name}`"
+                ))
+            })
+        })
+        .transpose()?;
+    let limit = match query.limit {
+        Some(text) => text
+            .parse::<usize>()
+            .ok()
+            .filter(|limit| (1..=MAX_PAGE).contains(limit))
+            .ok_or_else(|| {
+                ApiError::BadQuery(format!(
+                    "`limit` must be an integer in 1..={MAX_PAGE}, not `{text}`"
+                ))
+            })?,
+        None => DEFAULT_PAGE,
+    };
+    if let Some(cursor) = &query.cursor
+        && !is_job_id(cursor)
+    {
+        return Err(ApiError::BadQuery(format!(
+            "`cursor` must be a `next_cursor` from an earlier page, not `{cursor}`"
+        )));
+    }
+    let (page, more) = state
+        .queue
+        .list(&owner.0, status, query.cursor.as_deref(), limit);
+    let next_cursor = if more {
+        page.last().map(|(record, _)| record.id.clone())
+    } else {
+        None
+    };
+    let items: Vec<JobView> = page
+        .iter()
+        .map(|(record, position)| JobView::new(record, *position))
+        .collect();
+    Ok(Json(serde_json::json!({ "items": items, "next_cursor": next_cursor })).into_response())
+}
+
+/// 202 while a running job stops; 200 when the job is already terminal (or was queued and is
+/// now canceled).
+async fn cancel(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let entry = find(&state, &owner, &id)?;
+    let queue = state.queue.clone();
+    let cancel_entry = entry.clone();
+    let stopping = tokio::task::spawn_blocking(move || queue.cancel(&cancel_entry))
+        .await
+        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    let status = if stopping {
+        StatusCode::ACCEPTED
+    } else {
+        StatusCode::OK
+    };
+    let mut body = serde_json::to_value(view(&state, &entry)).expect("views serialise");
+    body["cancel_requested"] = serde_json::Value::Bool(stopping);
+    Ok((status, Json(body)).into_response())
+}
+
+async fn delete(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    let entry = find(&state, &owner, &id)?;
+    let queue = state.queue.clone();
+    tokio::task::spawn_blocking(move || queue.delete(&entry))
+        .await
+        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// Shortest gap between two progress events; the latest state always gets through.
+const EVENT_INTERVAL: Duration = Duration::from_millis(100);
+
+/// Server-Sent Events: `progress` events while the job is queued or running, then one
+/// `completed` event with the final job, then the stream ends.
+async fn events(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
+    let entry = find(&state, &owner, &id)?;
+    let receiver = entry.record.subscribe();
+    let shutdown = state.shutdown.subscribe();
+    let stream = futures_util::stream::unfold(
+        (receiver, shutdown, state, 0_u64, false),
+        |(mut receiver, mut shutdown, state, sequence, done)| async move {
+            if done {
+                return None;
+            }
+            if sequence > 0 {
+                tokio::time::sleep(EVENT_INTERVAL).await;
+                tokio::select! {
+                    changed = receiver.changed() => changed.ok()?,
+                    _ = shutdown.wait_for(|stopping| *stopping) => return None,
+                }
+            }
+            let record = receiver.borrow_and_update().clone();
+            let position = if record.status == Status::Queued {
+                state.queue.queue_position(&record.id)
+            } else {
+                None
+            };
+            let terminal = record.status.is_terminal();
+            let data =
+                serde_json::to_string(&JobView::new(&record, position)).expect("views serialise");
+            let event = Event::default()
+                .id(sequence.to_string())
+                .event(if terminal { "completed" } else { "progress" })
+                .data(data);
+            Some((
+                Ok(event),
+                (receiver, shutdown, state, sequence + 1, terminal),
+            ))
+        },
+    );
+    Ok(Sse::new(stream).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))))
+}

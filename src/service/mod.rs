@@ -1,0 +1,375 @@
+//! `covec serve`: the HTTP vectorisation service (api/openapi.yaml is its contract).
+//!
+//! Clients submit an image as a job, follow its progress by polling or Server-Sent Events, and
+//! fetch the layered SVG, per-layer SVGs, JSON scene and stage previews. Jobs run on a dedicated
+//! worker pool ([`queue`]), records and results persist in a data directory ([`store`]), and every
+//! error is an RFC 9457 problem ([`error`]).
+//!
+//! Each resource module lists its routes as [`Endpoint`]s; [`app`] builds the router from
+//! [`endpoints`], which a test compares with the OpenAPI document.
+
+mod auth;
+pub mod error;
+mod jobs;
+pub mod model;
+mod ops;
+pub mod queue;
+mod results;
+pub mod store;
+pub mod submit;
+
+use std::collections::HashSet;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::Router;
+use axum::extract::Request;
+use axum::handler::Handler;
+use axum::http::{HeaderValue, Method};
+use axum::middleware;
+use axum::routing::{MethodFilter, MethodRouter, on};
+use tokio::sync::watch;
+use tower_http::cors::{AllowOrigin, Any, CorsLayer};
+use tower_http::request_id::{
+    MakeRequestUuid, PropagateRequestIdLayer, RequestId, SetRequestIdLayer,
+};
+use tower_http::trace::TraceLayer;
+
+use error::ApiError;
+use ops::Metrics;
+use queue::{Queue, QueueConfig, QueueError};
+use store::{Store, StoreError};
+use submit::InputLimits;
+
+/// Everything `covec serve` can be told.
+#[derive(Clone, Debug)]
+pub struct Config {
+    /// Listening address. Default 127.0.0.1:8080.
+    pub addr: SocketAddr,
+    /// Job records and artefacts. Default `./covec-data`.
+    pub data_dir: PathBuf,
+    pub queue: QueueConfig,
+    pub limits: InputLimits,
+    /// Accepted API keys; empty (the default) means no authentication.
+    pub api_keys: Vec<String>,
+    /// Origins allowed by CORS; `*` allows any. Default none (no CORS headers).
+    pub cors_origins: Vec<String>,
+    /// How long running jobs may finish after a shutdown signal. Default 30 s.
+    pub shutdown_grace: Duration,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
+            data_dir: PathBuf::from("covec-data"),
+            queue: QueueConfig::default(),
+            limits: InputLimits::default(),
+            api_keys: Vec::new(),
+            cors_origins: Vec::new(),
+            shutdown_grace: Duration::from_secs(30),
+        }
+    }
+}
+
+/// Shared by every handler.
+#[derive(Clone)]
+pub struct AppState {
+    queue: Arc<Queue>,
+    metrics: Arc<Metrics>,
+    limits: InputLimits,
+    key_ids: Arc<HashSet<String>>,
+    cors_origins: Arc<Vec<String>>,
+    /// Becomes true when the server begins to stop (ends event streams).
+    shutdown: watch::Sender<bool>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error(transparent)]
+    Queue(#[from] QueueError),
+    #[error("cannot listen on {addr}: {source}")]
+    Bind {
+        addr: SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("server: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("CORS origin `{0}` is not a valid header value")]
+    CorsOrigin(String),
+}
+
+impl AppState {
+    /// Opens the data directory, recovers jobs and starts the workers. Call inside the runtime.
+    pub fn open(config: &Config) -> Result<Self, ServeError> {
+        for origin in &config.cors_origins {
+            if origin != "*" && HeaderValue::from_str(origin).is_err() {
+                return Err(ServeError::CorsOrigin(origin.clone()));
+            }
+        }
+        let store = Arc::new(Store::open(&config.data_dir)?);
+        let metrics = Arc::new(Metrics::default());
+        let queue = Queue::start(
+            config.queue.clone(),
+            config.limits.clone(),
+            store,
+            metrics.clone(),
+        )?;
+        Ok(Self {
+            queue,
+            metrics,
+            limits: config.limits.clone(),
+            key_ids: Arc::new(
+                config
+                    .api_keys
+                    .iter()
+                    .map(|key| auth::key_id(key))
+                    .collect(),
+            ),
+            cors_origins: Arc::new(config.cors_origins.clone()),
+            shutdown: watch::Sender::new(false),
+        })
+    }
+}
+
+/// One route: a method and an OpenAPI-style path, with its handler.
+pub struct Endpoint {
+    pub method: Method,
+    pub path: &'static str,
+    handler: MethodRouter<AppState>,
+}
+
+fn endpoint<H, T>(method: Method, path: &'static str, handler: H) -> Endpoint
+where
+    H: Handler<T, AppState>,
+    T: 'static,
+{
+    let filter = MethodFilter::try_from(method.clone()).expect("endpoints use standard methods");
+    Endpoint {
+        method,
+        path,
+        handler: on(filter, handler),
+    }
+}
+
+/// Every API route of the service. Issue 6 adds `POST /v1/jobs/{id}/edits` as an `edits`
+/// module here. The web page (`/`, [`crate::web::routes`]) is merged in [`app`]: it is not part
+/// of the API document.
+pub fn endpoints() -> Vec<Endpoint> {
+    let mut all = jobs::endpoints();
+    all.extend(results::endpoints());
+    all.extend(ops::endpoints());
+    all
+}
+
+/// The whole HTTP application.
+pub fn app(state: AppState) -> Router {
+    let mut router = Router::new();
+    for endpoint in endpoints() {
+        router = router.route(endpoint.path, endpoint.handler);
+    }
+    let cors = cors_layer(&state.cors_origins);
+    router
+        .merge(crate::web::routes())
+        .fallback(|request: Request| async move {
+            ApiError::RouteNotFound(request.uri().path().to_owned())
+        })
+        .method_not_allowed_fallback(|request: Request| async move {
+            ApiError::MethodNotAllowed(request.method().to_string())
+        })
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_key,
+        ))
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            ops::record_http,
+        ))
+        // A body limit for the upload route; the submission reader enforces the same number.
+        .layer(axum::extract::DefaultBodyLimit::max(
+            state.limits.max_body_bytes as usize,
+        ))
+        .layer(
+            TraceLayer::new_for_http().make_span_with(|request: &Request| {
+                let request_id = request
+                    .extensions()
+                    .get::<RequestId>()
+                    .and_then(|id| id.header_value().to_str().ok())
+                    .unwrap_or("-");
+                tracing::info_span!(
+                    "request",
+                    request_id,
+                    method = %request.method(),
+                    path = request.uri().path(),
+                    job_id = tracing::field::Empty,
+                )
+            }),
+        )
+        .layer(PropagateRequestIdLayer::x_request_id())
+        .layer(SetRequestIdLayer::x_request_id(MakeRequestUuid))
+        .layer(cors)
+        .with_state(state)
+}
+
+fn cors_layer(origins: &[String]) -> CorsLayer {
+    if origins.is_empty() {
+        return CorsLayer::new();
+    }
+    let layer = CorsLayer::new()
+        .allow_methods([Method::GET, Method::POST, Method::DELETE])
+        .allow_headers(Any)
+        .expose_headers(Any)
+        .max_age(Duration::from_secs(3600));
+    if origins.iter().any(|origin| origin == "*") {
+        layer.allow_origin(Any)
+    } else {
+        let values = origins
+            .iter()
+            .map(|origin| HeaderValue::from_str(origin).expect("checked in AppState::open"));
+        layer.allow_origin(AllowOrigin::list(values))
+    }
+}
+
+/// Runs the service until SIGINT/SIGTERM, then drains: stops accepting, ends event streams,
+/// lets running jobs finish for `shutdown_grace` (longer ones are re-queued for the next start).
+/// `on_listening` gets the bound address (useful with port 0).
+pub async fn serve(
+    config: Config,
+    on_listening: impl FnOnce(SocketAddr),
+) -> Result<(), ServeError> {
+    let state = AppState::open(&config)?;
+    let listener = tokio::net::TcpListener::bind(config.addr)
+        .await
+        .map_err(|source| ServeError::Bind {
+            addr: config.addr,
+            source,
+        })?;
+    let addr = listener.local_addr()?;
+    tracing::info!(%addr, data_dir = %config.data_dir.display(), workers = state.queue.workers(), "listening");
+    on_listening(addr);
+
+    let sweeper = tokio::spawn(sweep_expired(state.queue.clone(), config.queue.retention));
+    let shutdown = state.shutdown.clone();
+    axum::serve(listener, app(state.clone()))
+        .with_graceful_shutdown(async move {
+            stop_signal().await;
+            tracing::info!("shutting down: no new connections");
+            shutdown.send_replace(true);
+        })
+        .await?;
+    sweeper.abort();
+    let queue = state.queue.clone();
+    let grace = config.shutdown_grace;
+    tokio::task::spawn_blocking(move || queue.drain(grace))
+        .await
+        .map_err(std::io::Error::other)?;
+    tracing::info!("stopped");
+    Ok(())
+}
+
+/// Removes expired results periodically.
+async fn sweep_expired(queue: Arc<Queue>, retention: Duration) {
+    let period = (retention / 10).clamp(Duration::from_secs(1), Duration::from_secs(60));
+    let mut ticks = tokio::time::interval(period);
+    loop {
+        ticks.tick().await;
+        let queue = queue.clone();
+        let removed = tokio::task::spawn_blocking(move || queue.expire(model::now_ms()))
+            .await
+            .unwrap_or(0);
+        if removed > 0 {
+            tracing::info!(removed, "expired job results removed");
+        }
+    }
+}
+
+async fn stop_signal() {
+    let interrupt = tokio::signal::ctrl_c();
+    #[cfg(unix)]
+    {
+        let mut terminate =
+            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+                .expect("SIGTERM handler");
+        tokio::select! {
+            _ = interrupt => {}
+            _ = terminate.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = interrupt.await;
+}
+
+#[cfg(test)]
+mod tests {
+    use axum::body::Body;
+    use axum::http::{Request, StatusCode};
+    use tower::ServiceExt;
+
+    use super::*;
+
+    fn state(name: &str) -> (AppState, PathBuf) {
+        let data_dir =
+            std::env::temp_dir().join(format!("covec-unit-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&data_dir);
+        let config = Config {
+            data_dir: data_dir.clone(),
+            ..Config::default()
+        };
+        (AppState::open(&config).unwrap(), data_dir)
+    }
+
+    async fn call(app: Router, method: &str, uri: &str) -> (StatusCode, String, serde_json::Value) {
+        let request = Request::builder()
+            .method(method)
+            .uri(uri)
+            .body(Body::empty())
+            .unwrap();
+        let response = app.oneshot(request).await.unwrap();
+        let status = response.status();
+        let content_type = response.headers()["content-type"]
+            .to_str()
+            .unwrap()
+            .to_owned();
+        let body = axum::body::to_bytes(response.into_body(), 1 << 20)
+            .await
+            .unwrap();
+        (status, content_type, serde_json::from_slice(&body).unwrap())
+    }
+
+    #[tokio::test(flavor = "multi_thread")]
+    async fn routes_answer_in_process() {
+        let (state, data_dir) = state("routes");
+        let app = app(state);
+        let (status, _, body) = call(app.clone(), "GET", "/healthz").await;
+        assert_eq!(
+            (status, body["status"].as_str()),
+            (StatusCode::OK, Some("ok"))
+        );
+        let (status, _, body) = call(app.clone(), "GET", "/readyz").await;
+        assert_eq!(
+            (status, body["status"].as_str()),
+            (StatusCode::OK, Some("ready"))
+        );
+        let (status, content_type, body) = call(app.clone(), "GET", "/v1/jobs/nope").await;
+        assert_eq!(
+            (status, content_type.as_str()),
+            (StatusCode::BAD_REQUEST, error::PROBLEM_JSON)
+        );
+        assert_eq!(body["code"], "malformed-job-id");
+        let (status, _, body) = call(app.clone(), "GET", "/").await;
+        assert_eq!(
+            (status, body["code"].as_str()),
+            (StatusCode::NOT_FOUND, Some("route-not-found"))
+        );
+        let (status, _, body) = call(app, "DELETE", "/v1/jobs").await;
+        assert_eq!(
+            (status, body["code"].as_str()),
+            (StatusCode::METHOD_NOT_ALLOWED, Some("method-not-allowed"))
+        );
+        let _ = std::fs::remove_dir_all(data_dir);
+    }
+}

@@ -1,0 +1,298 @@
+//! The job resource: the persisted record and its public JSON view.
+
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use serde::{Deserialize, Serialize};
+
+use super::error::Problem;
+use crate::pipeline::{Mode, Params, Progress};
+
+/// Job id: `job_` + a UUIDv7 in hex, so ids sort by creation time.
+pub fn new_job_id() -> String {
+    format!("job_{}", uuid::Uuid::now_v7().simple())
+}
+
+/// True for ids [`new_job_id`] could have made.
+pub fn is_job_id(id: &str) -> bool {
+    id.strip_prefix("job_").is_some_and(|hex| {
+        hex.len() == 32
+            && hex
+                .bytes()
+                .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+    })
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Status {
+    Queued,
+    Running,
+    Succeeded,
+    Failed,
+    Canceled,
+}
+
+impl Status {
+    pub fn name(self) -> &'static str {
+        match self {
+            Status::Queued => "queued",
+            Status::Running => "running",
+            Status::Succeeded => "succeeded",
+            Status::Failed => "failed",
+            Status::Canceled => "canceled",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        [
+            Status::Queued,
+            Status::Running,
+            Status::Succeeded,
+            Status::Failed,
+            Status::Canceled,
+        ]
+        .into_iter()
+        .find(|status| status.name() == name)
+    }
+
+    pub fn is_terminal(self) -> bool {
+        matches!(self, Status::Succeeded | Status::Failed | Status::Canceled)
+    }
+}
+
+/// Why a job was asked to stop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CancelReason {
+    /// `POST /v1/jobs/{id}/cancel`.
+    User,
+    /// The per-job time limit passed.
+    Deadline,
+    /// The server stopped; the job is re-queued on the next start.
+    Shutdown,
+}
+
+/// Which inputs were uploaded (the bytes are files in the job directory).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct InputManifest {
+    pub albedo: bool,
+    /// Number of binary masks (`input/mask-<n>`).
+    pub masks: usize,
+    pub labels: bool,
+}
+
+/// Job progress as served (`progress` in the job resource and in events).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ProgressView {
+    /// Fraction of the whole run done, 0-1.
+    pub fraction: f32,
+    pub stage: StageView,
+    pub iteration: u32,
+    pub iterations: u32,
+    pub loss: Option<f32>,
+    pub elapsed_seconds: f32,
+    /// Estimated seconds to completion, from the elapsed time and `fraction`.
+    pub eta_seconds: Option<f32>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StageView {
+    pub name: String,
+    pub index: u32,
+    pub count: u32,
+}
+
+impl From<&Progress> for ProgressView {
+    fn from(progress: &Progress) -> Self {
+        let stage_count = progress.stage_count.max(1);
+        let within = if progress.iterations == 0 {
+            1.0
+        } else {
+            progress.iteration as f32 / progress.iterations as f32
+        };
+        let fraction = ((progress.stage_index as f32 + within.clamp(0.0, 1.0))
+            / stage_count as f32)
+            .clamp(0.0, 1.0);
+        let elapsed = progress.elapsed.as_secs_f32();
+        let eta_seconds = (fraction > 0.01).then(|| elapsed * (1.0 - fraction) / fraction);
+        Self {
+            fraction,
+            stage: StageView {
+                name: progress.stage.to_owned(),
+                index: progress.stage_index,
+                count: progress.stage_count,
+            },
+            iteration: progress.iteration,
+            iterations: progress.iterations,
+            loss: progress.loss.filter(|loss| loss.is_finite()),
+            elapsed_seconds: elapsed,
+            eta_seconds,
+        }
+    }
+}
+
+/// Everything known about a job; persisted as JSON in the job table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobRecord {
+    pub id: String,
+    /// Hash of the API key that created the job (`None` without keys).
+    pub owner: Option<String>,
+    pub status: Status,
+    /// Unix milliseconds.
+    pub created_at: u64,
+    pub started_at: Option<u64>,
+    pub completed_at: Option<u64>,
+    /// When the results will be removed (set on completion).
+    pub expires_at: Option<u64>,
+    pub params: Params,
+    pub inputs: InputManifest,
+    /// The mode actually run, once known.
+    pub mode: Option<Mode>,
+    pub progress: Option<ProgressView>,
+    /// Preview names (`<name>.png` under `previews/`), in the order the stages produced them.
+    pub previews: Vec<String>,
+    pub cancel_reason: Option<CancelReason>,
+    pub error: Option<Problem>,
+    pub idempotency: Option<Idempotency>,
+    /// Results deleted after the retention period.
+    pub data_removed: bool,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Idempotency {
+    pub key: String,
+    /// SHA-256 of the parameters and inputs.
+    pub fingerprint: String,
+}
+
+pub fn now_ms() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap_or(Duration::ZERO)
+        .as_millis() as u64
+}
+
+/// RFC 3339 UTC with milliseconds, e.g. `2026-11-22T03:20:33.123Z`.
+pub fn rfc3339(unix_ms: u64) -> String {
+    let seconds = unix_ms / 1000;
+    let (days, second_of_day) = (seconds / 86_400, seconds % 86_400);
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let day_of_era = z.rem_euclid(146_097);
+    let year_of_era =
+        (day_of_era - day_of_era / 1460 + day_of_era / 36_524 - day_of_era / 146_096) / 365;
+    let day_of_year = day_of_era - (365 * year_of_era + year_of_era / 4 - year_of_era / 100);
+    let mp = (5 * day_of_year + 2) / 153;
+    let day = day_of_year - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = year_of_era + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}.{:03}Z",
+        second_of_day / 3600,
+        second_of_day % 3600 / 60,
+        second_of_day % 60,
+        unix_ms % 1000
+    )
+}
+
+/// The job resource as clients see it.
+#[derive(Debug, Serialize)]
+pub struct JobView {
+    pub id: String,
+    pub status: Status,
+    /// Jobs ahead of this one (0 = next), while queued.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub queue_position: Option<usize>,
+    pub created_at: String,
+    pub started_at: Option<String>,
+    pub completed_at: Option<String>,
+    pub expires_at: Option<String>,
+    pub progress: Option<ProgressView>,
+    pub params: Params,
+    pub mode: Option<Mode>,
+    pub cancel_reason: Option<CancelReason>,
+    pub error: Option<Problem>,
+    pub data_removed: bool,
+    pub previews: Vec<String>,
+    pub urls: Urls,
+}
+
+#[derive(Debug, Serialize)]
+pub struct Urls {
+    #[serde(rename = "self")]
+    pub job: String,
+    pub events: String,
+    pub cancel: String,
+    pub previews: String,
+    /// Result links, present once the job has succeeded.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub results: Option<ResultUrls>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct ResultUrls {
+    pub svg: String,
+    pub scene: String,
+    pub albedo: String,
+    pub shade: String,
+    pub light: String,
+}
+
+impl JobView {
+    pub fn new(record: &JobRecord, queue_position: Option<usize>) -> Self {
+        let base = format!("/v1/jobs/{}", record.id);
+        let results =
+            (record.status == Status::Succeeded && !record.data_removed).then(|| ResultUrls {
+                svg: format!("{base}/svg"),
+                scene: format!("{base}/scene.json"),
+                albedo: format!("{base}/layers/albedo.svg"),
+                shade: format!("{base}/layers/shade.svg"),
+                light: format!("{base}/layers/light.svg"),
+            });
+        Self {
+            id: record.id.clone(),
+            status: record.status,
+            queue_position,
+            created_at: rfc3339(record.created_at),
+            started_at: record.started_at.map(rfc3339),
+            completed_at: record.completed_at.map(rfc3339),
+            expires_at: record.expires_at.map(rfc3339),
+            progress: record.progress.clone(),
+            params: record.params.clone(),
+            mode: record.mode,
+            cancel_reason: record.cancel_reason,
+            error: record.error.clone(),
+            data_removed: record.data_removed,
+            previews: record.previews.clone(),
+            urls: Urls {
+                events: format!("{base}/events"),
+                cancel: format!("{base}/cancel"),
+                previews: format!("{base}/previews"),
+                results,
+                job: base,
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rfc3339_formats_known_instants() {
+        assert_eq!(rfc3339(0), "1970-01-01T00:00:00.000Z");
+        assert_eq!(rfc3339(951_782_400_000), "2000-02-29T00:00:00.000Z");
+        assert_eq!(rfc3339(1_795_318_833_123), "2026-11-22T03:40:33.123Z");
+    }
+
+    #[test]
+    fn job_ids_are_recognised() {
+        let id = new_job_id();
+        assert!(is_job_id(&id), "{id}");
+        assert!(!is_job_id("job_123"));
+        assert!(!is_job_id(&id.to_uppercase()));
+        assert!(!is_job_id("../etc/passwd"));
+    }
+}

@@ -1,0 +1,377 @@
+//! Reading a job submission (multipart or JSON with base64) and checking it against the limits.
+//!
+//! Every check that can fail on the client's input runs here, before a job exists, so bad input
+//! is a 4xx on `POST /v1/jobs` rather than a failed job.
+
+use axum::body::Bytes;
+use axum::extract::{FromRequest, Multipart, Request};
+use axum::http::header;
+use base64::Engine;
+use serde::Deserialize;
+use sha2::{Digest, Sha256};
+
+use super::error::ApiError;
+use crate::imageio;
+use crate::pipeline::{Inputs, Masks, Params};
+
+/// Limits on what one job may ask for.
+#[derive(Clone, Debug)]
+pub struct InputLimits {
+    /// Largest request body in bytes. Default 32 MiB.
+    pub max_body_bytes: u64,
+    /// Largest image (and albedo, mask, label map) in pixels, checked before decoding. Default 16 000 000.
+    pub max_pixels: u64,
+    /// Most masks per job. Default 256.
+    pub max_masks: usize,
+    /// Largest `params.paths`. Default 1024.
+    pub max_paths: u32,
+    /// Largest `params.max_size`. Default 1024.
+    pub max_size: u32,
+    /// Largest total iteration budget (structure + reconstruction + refine_rounds × refine + polish).
+    /// Default 5000 (the defaults add up to 650).
+    pub max_iterations: u64,
+}
+
+impl Default for InputLimits {
+    fn default() -> Self {
+        Self {
+            max_body_bytes: 32 << 20,
+            max_pixels: 16_000_000,
+            max_masks: 256,
+            max_paths: 1024,
+            max_size: 1024,
+            max_iterations: 5000,
+        }
+    }
+}
+
+/// The encoded inputs and parameters of one job, as uploaded.
+pub struct Submission {
+    pub image: Bytes,
+    pub albedo: Option<Bytes>,
+    pub masks: Vec<Bytes>,
+    pub labels: Option<Bytes>,
+    pub params: Params,
+}
+
+/// The JSON form of a submission: images as base64 (optionally as `data:` URLs).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JsonSubmission {
+    image: String,
+    albedo: Option<String>,
+    #[serde(default)]
+    masks: Vec<String>,
+    labels: Option<String>,
+    params: Option<serde_json::Value>,
+}
+
+/// Reads the body of `POST /v1/jobs`.
+pub async fn read(request: Request, limits: &InputLimits) -> Result<Submission, ApiError> {
+    let content_type = request
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|value| value.to_str().ok())
+        .unwrap_or("")
+        .to_owned();
+    let declared_length = request
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|value| value.to_str().ok())
+        .and_then(|value| value.parse::<u64>().ok());
+    if declared_length.is_some_and(|length| length > limits.max_body_bytes) {
+        return Err(ApiError::BodyTooLarge {
+            limit: limits.max_body_bytes,
+        });
+    }
+    let media_type = content_type
+        .split(';')
+        .next()
+        .unwrap_or("")
+        .trim()
+        .to_ascii_lowercase();
+    let submission = match media_type.as_str() {
+        "multipart/form-data" => read_multipart(request, limits).await?,
+        "application/json" => read_json(request, limits).await?,
+        _ => return Err(ApiError::UnsupportedMediaType(content_type)),
+    };
+    check_params(&submission.params, limits)?;
+    Ok(submission)
+}
+
+async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submission, ApiError> {
+    let mut multipart = Multipart::from_request(request, &())
+        .await
+        .map_err(|rejection| ApiError::BadRequest(rejection.body_text()))?;
+    let field_error = |error: axum::extract::multipart::MultipartError| {
+        if error.status() == axum::http::StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::BodyTooLarge {
+                limit: limits.max_body_bytes,
+            }
+        } else {
+            ApiError::BadRequest(error.body_text())
+        }
+    };
+    let (mut image, mut albedo, mut masks, mut labels, mut params) =
+        (None, None, Vec::new(), None, None);
+    while let Some(field) = multipart.next_field().await.map_err(field_error)? {
+        let name = field.name().unwrap_or("").to_owned();
+        let bytes = field.bytes().await.map_err(field_error)?;
+        let slot = match name.as_str() {
+            "image" => &mut image,
+            "albedo" => &mut albedo,
+            "labels" => &mut labels,
+            "params" => &mut params,
+            "mask" => {
+                masks.push(bytes);
+                if masks.len() > limits.max_masks {
+                    return Err(too_many_masks(masks.len(), limits));
+                }
+                continue;
+            }
+            other => {
+                return Err(ApiError::BadRequest(format!(
+                    "unknown form field `{other}`"
+                )));
+            }
+        };
+        if slot.replace(bytes).is_some() {
+            return Err(ApiError::BadRequest(format!(
+                "form field `{name}` given twice"
+            )));
+        }
+    }
+    let params =
+        match params {
+            Some(json) => parse_params(serde_json::from_slice(&json).map_err(|error| {
+                ApiError::InvalidParams(format!("`params` is not JSON: {error}"))
+            })?)?,
+            None => Params::default(),
+        };
+    let image =
+        image.ok_or_else(|| ApiError::BadRequest("the form field `image` is required".into()))?;
+    Ok(Submission {
+        image,
+        albedo,
+        masks,
+        labels,
+        params,
+    })
+}
+
+async fn read_json(request: Request, limits: &InputLimits) -> Result<Submission, ApiError> {
+    let body = axum::body::to_bytes(request.into_body(), limits.max_body_bytes as usize)
+        .await
+        .map_err(|error| {
+            let over_limit = std::error::Error::source(&error)
+                .is_some_and(|source| source.is::<http_body_util::LengthLimitError>())
+                || error.into_inner().is::<http_body_util::LengthLimitError>();
+            if over_limit {
+                ApiError::BodyTooLarge {
+                    limit: limits.max_body_bytes,
+                }
+            } else {
+                ApiError::BadRequest("the request body could not be read".into())
+            }
+        })?;
+    let json: JsonSubmission = serde_json::from_slice(&body)
+        .map_err(|error| ApiError::BadRequest(format!("JSON body: {error}")))?;
+    if json.masks.len() > limits.max_masks {
+        return Err(too_many_masks(json.masks.len(), limits));
+    }
+    let masks = json
+        .masks
+        .iter()
+        .map(|mask| decode_base64("masks[]", mask))
+        .collect::<Result<_, _>>()?;
+    Ok(Submission {
+        image: decode_base64("image", &json.image)?,
+        albedo: json
+            .albedo
+            .as_deref()
+            .map(|albedo| decode_base64("albedo", albedo))
+            .transpose()?,
+        masks,
+        labels: json
+            .labels
+            .as_deref()
+            .map(|labels| decode_base64("labels", labels))
+            .transpose()?,
+        params: json
+            .params
+            .map(parse_params)
+            .transpose()?
+            .unwrap_or_default(),
+    })
+}
+
+fn too_many_masks(actual: usize, limits: &InputLimits) -> ApiError {
+    ApiError::TooManyMasks {
+        limit: limits.max_masks as u64,
+        actual: actual as u64,
+    }
+}
+
+/// Standard base64, optionally wrapped in a `data:<type>;base64,` URL.
+fn decode_base64(field: &str, text: &str) -> Result<Bytes, ApiError> {
+    let payload = match text.strip_prefix("data:") {
+        Some(url) => url
+            .split_once(";base64,")
+            .map(|(_, payload)| payload)
+            .ok_or_else(|| {
+                ApiError::BadRequest(format!("`{field}` is a data URL without `;base64,`"))
+            })?,
+        None => text,
+    };
+    base64::engine::general_purpose::STANDARD
+        .decode(payload.trim())
+        .map(Bytes::from)
+        .map_err(|error| ApiError::BadRequest(format!("`{field}` is not valid base64: {error}")))
+}
+
+fn parse_params(value: serde_json::Value) -> Result<Params, ApiError> {
+    serde_json::from_value(value).map_err(|error| ApiError::InvalidParams(error.to_string()))
+}
+
+/// Range checks beyond what the types enforce.
+fn check_params(params: &Params, limits: &InputLimits) -> Result<(), ApiError> {
+    params.validate().map_err(|error| match error {
+        crate::pipeline::Error::Params(detail) => ApiError::InvalidParams(detail),
+        other => ApiError::InvalidParams(other.to_string()),
+    })?;
+    if !(8..=limits.max_paths).contains(&params.paths) {
+        return Err(ApiError::InvalidParams(format!(
+            "`paths` must be in 8..={}, not {}",
+            limits.max_paths, params.paths
+        )));
+    }
+    if !(16..=limits.max_size).contains(&params.max_size) {
+        return Err(ApiError::InvalidParams(format!(
+            "`max_size` must be in 16..={}, not {}",
+            limits.max_size, params.max_size
+        )));
+    }
+    let it = &params.iterations;
+    let total = u64::from(it.structure)
+        + u64::from(it.reconstruction)
+        + u64::from(it.refine_rounds) * u64::from(it.refine)
+        + u64::from(it.polish);
+    if total > limits.max_iterations {
+        return Err(ApiError::InvalidParams(format!(
+            "the iteration budget {total} is over the limit of {}",
+            limits.max_iterations
+        )));
+    }
+    Ok(())
+}
+
+impl Submission {
+    /// SHA-256 over the parameters and every input, for `Idempotency-Key`.
+    pub fn fingerprint(&self) -> String {
+        let mut hasher = Sha256::new();
+        hasher.update(serde_json::to_vec(&self.params).expect("params always serialise"));
+        let mut part = |tag: &[u8], bytes: &[u8]| {
+            hasher.update(tag);
+            hasher.update((bytes.len() as u64).to_le_bytes());
+            hasher.update(bytes);
+        };
+        part(b"image", &self.image);
+        if let Some(albedo) = &self.albedo {
+            part(b"albedo", albedo);
+        }
+        for mask in &self.masks {
+            part(b"mask", mask);
+        }
+        if let Some(labels) = &self.labels {
+            part(b"labels", labels);
+        }
+        hex(&hasher.finalize())
+    }
+}
+
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|byte| format!("{byte:02x}")).collect()
+}
+
+/// Decodes and cross-checks the inputs of a job (CPU work: call off the async runtime).
+pub fn decode_inputs(
+    image: &[u8],
+    albedo: Option<&[u8]>,
+    masks: &[Bytes],
+    labels: Option<&[u8]>,
+    limits: &InputLimits,
+) -> Result<Inputs, ApiError> {
+    if !masks.is_empty() && labels.is_some() {
+        return Err(ApiError::InvalidInput(
+            "send either `mask` fields or one `labels` map, not both".into(),
+        ));
+    }
+    let decode_limits = imageio::Limits {
+        max_pixels: limits.max_pixels,
+        max_masks: limits.max_masks,
+    };
+    let image = imageio::decode_image(image, &decode_limits).map_err(input_error("image"))?;
+    let (width, height) = (image.width(), image.height());
+    let same_size = |what: String, (w, h): (u32, u32)| {
+        if (w, h) == (width, height) {
+            Ok(())
+        } else {
+            Err(ApiError::InvalidInput(format!(
+                "{what} is {w}×{h} but the image is {width}×{height}"
+            )))
+        }
+    };
+    let albedo = albedo
+        .map(|bytes| imageio::decode_image(bytes, &decode_limits).map_err(input_error("albedo")))
+        .transpose()?;
+    if let Some(albedo) = &albedo {
+        let (aw, ah) = (f64::from(albedo.width()), f64::from(albedo.height()));
+        let (iw, ih) = (f64::from(width), f64::from(height));
+        if ((aw / ah) / (iw / ih) - 1.0).abs() > 0.01 {
+            return Err(ApiError::InvalidInput(format!(
+                "the albedo map is {aw}×{ah}, not the aspect ratio of the {iw}×{ih} image"
+            )));
+        }
+    }
+    let masks = if let Some(labels) = labels {
+        let labels =
+            imageio::decode_labels(labels, &decode_limits).map_err(input_error("label map"))?;
+        same_size("the label map".into(), (labels.width(), labels.height()))?;
+        Masks::Labels(labels)
+    } else if masks.is_empty() {
+        Masks::None
+    } else {
+        let mut binary = Vec::with_capacity(masks.len());
+        for (index, bytes) in masks.iter().enumerate() {
+            let name = format!("mask {index}");
+            let mask =
+                imageio::decode_mask(&name, bytes, &decode_limits).map_err(input_error("mask"))?;
+            same_size(name, mask.dimensions())?;
+            binary.push(mask);
+        }
+        Masks::Binary(binary)
+    };
+    Ok(Inputs {
+        image,
+        albedo,
+        masks,
+    })
+}
+
+/// Maps a decoding refusal to its problem: limits are 413, the rest 422.
+fn input_error(what: &'static str) -> impl Fn(imageio::InputError) -> ApiError {
+    move |error| match error {
+        imageio::InputError::Undecodable(detail) => ApiError::UndecodableImage(what, detail),
+        imageio::InputError::TooManyPixels { pixels, max, .. } => ApiError::TooManyPixels {
+            limit: max,
+            actual: pixels,
+        },
+        imageio::InputError::TooManyMasks { count, max } => ApiError::TooManyMasks {
+            limit: max as u64,
+            actual: count as u64,
+        },
+        other @ (imageio::InputError::Empty { .. } | imageio::InputError::NonBinaryMask { .. }) => {
+            ApiError::InvalidInput(format!("{what}: {other}"))
+        }
+    }
+}

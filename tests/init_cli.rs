@@ -1,0 +1,270 @@
+//! `covec vectorize` end to end: files written, previews, layers, and one-line errors.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const APPLE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/fixtures/emoji_red-apple.png"
+);
+
+fn covec(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_covec"))
+        .args(args)
+        .output()
+        .expect("covec runs")
+}
+
+/// A fresh scratch directory under target/ for one test.
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join("init_cli")
+        .join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Fails with exit code 1 and exactly one line on stderr mentioning `needle`.
+fn assert_one_line_error(out: &Output, needle: &str) {
+    let text = stderr(out);
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    assert_eq!(text.lines().count(), 1, "{text}");
+    assert!(
+        text.starts_with("error: ") && text.contains(needle),
+        "{text}"
+    );
+}
+
+#[test]
+fn vectorize_writes_svg_json_layers_and_previews() {
+    let dir = scratch("full");
+    let svg = dir.join("apple.svg");
+    let (layers, previews) = (dir.join("layers"), dir.join("previews"));
+    let out = covec(&[
+        "vectorize",
+        APPLE,
+        "-o",
+        svg.to_str().unwrap(),
+        "--max-size",
+        "64",
+        "--paths",
+        "16",
+        "--layers",
+        layers.to_str().unwrap(),
+        "--previews",
+        previews.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        out.stdout.is_empty() && out.stderr.is_empty(),
+        "quiet when not on a terminal"
+    );
+    let text = std::fs::read_to_string(&svg).unwrap();
+    let doc = roxmltree::Document::parse(&text).unwrap();
+    assert_eq!(
+        doc.root_element().attribute("width"),
+        Some("256"),
+        "the original size"
+    );
+    assert_eq!(
+        doc.root_element().attribute("viewBox"),
+        Some("0 0 64 64"),
+        "the working size"
+    );
+    let paths = doc.descendants().filter(|n| n.has_tag_name("path")).count();
+    assert!((1..=16).contains(&paths), "{paths} paths");
+    let scene: covec::scene::Scene =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("apple.json")).unwrap()).unwrap();
+    assert_eq!(scene.path_count(), paths);
+    for layer in ["albedo", "shade", "light"] {
+        assert!(layers.join(format!("{layer}.svg")).is_file(), "{layer}.svg");
+    }
+    for preview in [
+        "00-input",
+        "00-albedo-map",
+        "01-masks-albedo",
+        "01-init-albedo",
+        "01-init-composite",
+    ] {
+        let png = image::open(previews.join(format!("{preview}.png"))).unwrap();
+        assert_eq!((png.width(), png.height()), (64, 64), "{preview}");
+    }
+    // Same input, same bytes.
+    let again = dir.join("again.svg");
+    assert!(
+        covec(&[
+            "vectorize",
+            APPLE,
+            "-o",
+            again.to_str().unwrap(),
+            "--max-size",
+            "64",
+            "--paths",
+            "16"
+        ])
+        .status
+        .success()
+    );
+    assert_eq!(std::fs::read(&again).unwrap(), text.as_bytes());
+}
+
+#[test]
+fn help_explains_every_option() {
+    let out = covec(&["vectorize", "--help"]);
+    let help = String::from_utf8_lossy(&out.stdout);
+    for option in [
+        "--output",
+        "--json",
+        "--albedo",
+        "--masks",
+        "--labels",
+        "--paths",
+        "--mode",
+        "--max-size",
+        "--seed",
+        "--previews",
+        "--layers",
+        "--max-pixels",
+        "--max-masks",
+    ] {
+        assert!(help.contains(option), "{option} missing from --help");
+    }
+    for default in [
+        "[default: 64]",
+        "[default: auto]",
+        "[default: 512]",
+        "[default: 0]",
+        "[default: 40000000]",
+        "[default: 256]",
+    ] {
+        assert!(help.contains(default), "{default} missing from --help");
+    }
+}
+
+#[test]
+fn bad_inputs_fail_with_one_clear_line() {
+    let dir = scratch("bad");
+    let out_svg = dir.join("out.svg");
+    let out_svg = out_svg.to_str().unwrap();
+
+    let garbage = dir.join("garbage.png");
+    std::fs::write(&garbage, b"not an image at all").unwrap();
+    assert_one_line_error(
+        &covec(&["vectorize", garbage.to_str().unwrap(), "-o", out_svg]),
+        "could not be decoded",
+    );
+
+    assert_one_line_error(
+        &covec(&["vectorize", "/nonexistent/x.png", "-o", out_svg]),
+        "cannot read /nonexistent/x.png",
+    );
+
+    let out = covec(&["vectorize", APPLE, "-o", out_svg, "--max-pixels", "1000"]);
+    assert_one_line_error(&out, "more than the limit of 1000");
+
+    let out = covec(&["vectorize", APPLE, "-o", out_svg, "--paths", "2000"]);
+    assert_one_line_error(&out, "8-1024");
+
+    // Masks: wrong aspect ratio, non-binary, too many.
+    let masks = dir.join("masks");
+    std::fs::create_dir_all(&masks).unwrap();
+    image::GrayImage::from_fn(64, 32, |x, _| image::Luma([if x < 10 { 255 } else { 0 }]))
+        .save(masks.join("a.png"))
+        .unwrap();
+    let out = covec(&[
+        "vectorize",
+        APPLE,
+        "-o",
+        out_svg,
+        "--masks",
+        masks.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&out, "aspect ratio");
+
+    image::GrayImage::from_fn(64, 64, |x, _| image::Luma([x as u8]))
+        .save(masks.join("a.png"))
+        .unwrap();
+    let out = covec(&[
+        "vectorize",
+        APPLE,
+        "-o",
+        out_svg,
+        "--masks",
+        masks.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&out, "not binary");
+
+    image::GrayImage::from_fn(64, 64, |x, _| image::Luma([if x < 10 { 255 } else { 0 }]))
+        .save(masks.join("a.png"))
+        .unwrap();
+    std::fs::copy(masks.join("a.png"), masks.join("b.png")).unwrap();
+    let out = covec(&[
+        "vectorize",
+        APPLE,
+        "-o",
+        out_svg,
+        "--masks",
+        masks.to_str().unwrap(),
+        "--max-masks",
+        "1",
+    ]);
+    assert_one_line_error(&out, "2 masks given, more than the limit of 1");
+
+    let out = covec(&[
+        "vectorize",
+        APPLE,
+        "-o",
+        out_svg,
+        "--max-size",
+        "64",
+        "--masks",
+        masks.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+}
+
+#[test]
+fn label_maps_seed_the_albedo_masks() {
+    let dir = scratch("labels");
+    let labels = dir.join("labels.png");
+    // Three labels: left, top right, bottom right.
+    image::RgbImage::from_fn(128, 128, |x, y| {
+        image::Rgb(if x < 64 {
+            [1, 0, 0]
+        } else if y < 64 {
+            [0, 2, 0]
+        } else {
+            [0, 0, 3]
+        })
+    })
+    .save(&labels)
+    .unwrap();
+    let svg = dir.join("out.svg");
+    let out = covec(&[
+        "vectorize",
+        APPLE,
+        "-o",
+        svg.to_str().unwrap(),
+        "--max-size",
+        "64",
+        "--mode",
+        "photo",
+        "--labels",
+        labels.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let scene: covec::scene::Scene =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("out.json")).unwrap()).unwrap();
+    // Base + the three label regions (one may be dropped as a near-duplicate of nothing: none are).
+    assert_eq!(
+        scene.albedo.paths.len(),
+        4,
+        "{:?}",
+        scene.albedo.paths.len()
+    );
+}

@@ -1,0 +1,223 @@
+//! Every analytic gradient of the renderer against central finite differences of its forward.
+
+mod render_support;
+
+use covec::render::composite::{product, product_backward};
+use covec::render::{Flattening, Image, PathGrad, Rasterizer};
+use covec::scene::Path;
+use render_support::*;
+
+/// Steps of the central differences: points move by `H_POINT` px, paints by `H_PAINT` (powers
+/// of two, so `v ± h` is exact in f32). Coverage is piecewise quadratic in the points (C¹, with
+/// kinks where a vertex or edge crosses a pixel boundary), so the step is small; the forward
+/// being differenced is the f64 evaluation of the very same renderer, so rounding stays far
+/// below the step.
+const H_POINT: f32 = 1.0 / 8192.0;
+const H_PAINT: f32 = 1.0 / 1024.0;
+const REL_TOL: f64 = 1e-2;
+const ABS_TOL: f64 = 1e-4;
+
+/// Which parameter of which path.
+#[derive(Clone, Copy, Debug)]
+enum Param {
+    X(usize),
+    Y(usize),
+    Color(usize),
+    Opacity,
+}
+
+fn get(path: &Path, p: Param) -> f32 {
+    match p {
+        Param::X(i) => path.points[i].x,
+        Param::Y(i) => path.points[i].y,
+        Param::Color(c) => path.color[c],
+        Param::Opacity => path.opacity,
+    }
+}
+
+fn set(path: &mut Path, p: Param, v: f32) {
+    match p {
+        Param::X(i) => path.points[i].x = v,
+        Param::Y(i) => path.points[i].y = v,
+        Param::Color(c) => path.color[c] = v,
+        Param::Opacity => path.opacity = v,
+    }
+}
+
+fn analytic(grad: &PathGrad, p: Param) -> f64 {
+    (match p {
+        Param::X(i) => grad.points[i].x,
+        Param::Y(i) => grad.points[i].y,
+        Param::Color(c) => grad.color[c],
+        Param::Opacity => grad.opacity,
+    }) as f64
+}
+
+fn params(path: &Path) -> Vec<Param> {
+    let mut v: Vec<Param> = (0..path.points.len())
+        .flat_map(|i| [Param::X(i), Param::Y(i)])
+        .collect();
+    v.extend([
+        Param::Color(0),
+        Param::Color(1),
+        Param::Color(2),
+        Param::Opacity,
+    ]);
+    v
+}
+
+/// Compares every gradient of every layer against central differences of `loss`; returns the
+/// number of parameters checked.
+fn check_all(
+    layers: &mut [Vec<Path>],
+    grads: &[Vec<PathGrad>],
+    mut loss: impl FnMut(&[Vec<Path>]) -> f64,
+) -> usize {
+    let mut failures = Vec::new();
+    let mut checked = 0;
+    let mut worst = 0.0f64;
+    for l in 0..layers.len() {
+        for i in 0..layers[l].len() {
+            for p in params(&layers[l][i]) {
+                let h = if matches!(p, Param::X(_) | Param::Y(_)) {
+                    H_POINT
+                } else {
+                    H_PAINT
+                };
+                let v = get(&layers[l][i], p);
+                set(&mut layers[l][i], p, v + h);
+                let up = loss(layers);
+                set(&mut layers[l][i], p, v - h);
+                let down = loss(layers);
+                set(&mut layers[l][i], p, v);
+                let fd = (up - down) / (2.0 * h as f64);
+                let an = analytic(&grads[l][i], p);
+                let err = (an - fd).abs();
+                worst = worst.max(err / fd.abs().max(ABS_TOL / REL_TOL));
+                if err > (REL_TOL * fd.abs()).max(ABS_TOL) {
+                    failures.push(format!(
+                        "layer {l} path {i} {p:?}: analytic {an:.6e}, fd {fd:.6e}"
+                    ));
+                }
+                checked += 1;
+            }
+        }
+    }
+    eprintln!("{checked} gradients checked, worst scaled error {worst:.3e}");
+    assert!(
+        failures.is_empty(),
+        "{} of {checked} gradients off:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+    checked
+}
+
+fn target_and_weights(rng: &mut SplitMix64, len: usize) -> (Vec<f32>, Vec<f32>) {
+    let target = (0..len).map(|_| rng.uniform()).collect();
+    let weights = (0..len).map(|_| rng.range(0.5, 1.5)).collect();
+    (target, weights)
+}
+
+#[test]
+fn single_layer_gradients_match_finite_differences() {
+    for (seed, size) in [(1u64, 32usize), (2, 48), (3, 64)] {
+        let mut rng = SplitMix64(seed);
+        let mut paths = mixed_scene(&mut rng, size as f32, 3, 2);
+        let base = [1.0, 1.0, 1.0];
+        let (target, weights) = target_and_weights(&mut rng, size * size * 3);
+        // Fixed line counts: finite differences must not straddle a change of flattening.
+        let mut raster = Rasterizer::with_flattening(Flattening::Fixed(8));
+        let image = render(&mut raster, &paths, base, size);
+        let (_, d_out) = weighted_sq_loss(&image, &target, &weights);
+        let mut grads = zero_grads(&paths);
+        raster.backward(&paths, base, &d_out, &mut grads);
+
+        let mut layers = [std::mem::take(&mut paths)];
+        check_all(&mut layers, &[grads], |layers| {
+            let image = raster.render_f64(&layers[0], base, size, size);
+            weighted_sq_loss_f64(&image, &target, &weights)
+        });
+    }
+}
+
+#[test]
+fn product_composite_gradients_match_finite_differences() {
+    let size = 40;
+    let mut rng = SplitMix64(7);
+    let albedo = mixed_scene(&mut rng, size as f32, 3, 1);
+    let mut illum = mixed_scene(&mut rng, size as f32, 2, 1);
+    // Illumination may exceed 1 during optimisation.
+    for p in &mut illum {
+        p.color = p.color.map(|c| 2.0 * c);
+    }
+    let (target, weights) = target_and_weights(&mut rng, size * size * 3);
+    let bases = [[1.0; 3], [1.0; 3]];
+    let mut raster = Rasterizer::with_flattening(Flattening::Fixed(6));
+
+    let forward = |layers: &[Vec<Path>], raster: &mut Rasterizer| -> (Image, Image, Image) {
+        let a = render(raster, &layers[0], bases[0], size);
+        let i = render(raster, &layers[1], bases[1], size);
+        let mut v = Image::default();
+        product(&a, &i, &mut v);
+        (a, i, v)
+    };
+    let mut layers = [albedo, illum];
+    let (a, i, v) = forward(&layers, &mut raster);
+    let (_, d_v) = weighted_sq_loss(&v, &target, &weights);
+    let (mut d_a, mut d_i) = (Image::default(), Image::default());
+    product_backward(&a, &i, &d_v, &mut d_a, &mut d_i);
+    let mut grads = [zero_grads(&layers[0]), zero_grads(&layers[1])];
+    raster.backward(&layers[0], bases[0], &d_a, &mut grads[0]);
+    raster.backward(&layers[1], bases[1], &d_i, &mut grads[1]);
+
+    check_all(&mut layers, &grads, |layers| {
+        let a = raster.render_f64(&layers[0], bases[0], size, size);
+        let i = raster.render_f64(&layers[1], bases[1], size, size);
+        let v: Vec<f64> = a.iter().zip(&i).map(|(a, i)| a * i).collect();
+        weighted_sq_loss_f64(&v, &target, &weights)
+    });
+}
+
+#[test]
+fn deep_overlap_gradients_match_finite_differences() {
+    // 600 canvas-wide paths: deep enough that the backward splits each 16-row band into
+    // several passes; check a few paths at the bottom, middle and top of the stack.
+    let size = 48;
+    let mut rng = SplitMix64(9);
+    let mut paths: Vec<Path> = (0..600)
+        .map(|_| {
+            let pts = scribble(
+                &mut rng,
+                -5.0,
+                -5.0,
+                size as f32 + 5.0,
+                size as f32 + 5.0,
+                4,
+            );
+            paint(&mut rng, pts)
+        })
+        .collect();
+    for p in &mut paths {
+        p.opacity *= 0.2;
+    }
+    let base = [1.0, 1.0, 1.0];
+    let (target, weights) = target_and_weights(&mut rng, size * size * 3);
+    let mut raster = Rasterizer::with_flattening(Flattening::Fixed(4));
+    let image = render(&mut raster, &paths, base, size);
+    let (_, d_out) = weighted_sq_loss(&image, &target, &weights);
+    let mut grads = zero_grads(&paths);
+    raster.backward(&paths, base, &d_out, &mut grads);
+
+    let picked = [0usize, 300, 599];
+    let mut layers = [picked.iter().map(|&i| paths[i].clone()).collect::<Vec<_>>()];
+    let picked_grads = [picked.iter().map(|&i| grads[i].clone()).collect::<Vec<_>>()];
+    check_all(&mut layers, &picked_grads, |layers| {
+        let mut scene = paths.clone();
+        for (k, &i) in picked.iter().enumerate() {
+            scene[i] = layers[0][k].clone();
+        }
+        let image = raster.render_f64(&scene, base, size, size);
+        weighted_sq_loss_f64(&image, &target, &weights)
+    });
+}

@@ -1,0 +1,408 @@
+//! The service's HTTP contract without running the pipeline to the end: bad requests, auth and
+//! visibility, listing, operations endpoints, and the OpenAPI document against the router.
+
+mod service_support;
+
+use std::collections::BTreeSet;
+
+use hyper::{Method, StatusCode};
+use serde_json::json;
+use service_support::{DataDir, LONG_PARAMS, QUICK_PARAMS, Server, png, problem, test_png};
+
+const UNKNOWN_ID: &str = "job_0192f0c4a1b27c3d8e9f0a1b2c3d4e5f";
+
+#[tokio::test]
+async fn bad_requests_get_the_right_4xx_problem() {
+    let dir = DataDir::new("bad-requests");
+    // Tiny limits so each one is easy to cross; 32×32 = 1024 pixels is within them.
+    let server = Server::start(
+        &dir.0,
+        &[
+            "--max-pixels",
+            "2000",
+            "--max-body-bytes",
+            "100000",
+            "--workers",
+            "1",
+        ],
+    );
+    let image = test_png(32);
+    let small_mask = png(&image::DynamicImage::ImageLuma8(image::GrayImage::new(
+        16, 16,
+    )));
+    let big_image = test_png(64);
+    let noise: Vec<u8> = (0..150_000u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8)
+        .collect();
+
+    let cases: Vec<(&str, service_support::Reply, StatusCode, &str)> = vec![
+        (
+            "corrupt image",
+            server
+                .submit(&[("image", b"this is not a PNG file at all")], &[])
+                .await,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "undecodable-image",
+        ),
+        (
+            "wrong content type",
+            server
+                .request(
+                    Method::POST,
+                    "/v1/jobs",
+                    &[("content-type", "text/plain")],
+                    b"hello".to_vec(),
+                )
+                .await,
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "unsupported-media-type",
+        ),
+        (
+            "oversized body",
+            server.submit(&[("image", &noise)], &[]).await,
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "body-too-large",
+        ),
+        (
+            "too many pixels",
+            server.submit(&[("image", &big_image)], &[]).await,
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too-many-pixels",
+        ),
+        (
+            "bad params (out of range)",
+            server
+                .submit(&[("image", &image), ("params", br#"{"paths": 2}"#)], &[])
+                .await,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid-params",
+        ),
+        (
+            "bad params (unknown field)",
+            server
+                .submit(&[("image", &image), ("params", br#"{"colours": 3}"#)], &[])
+                .await,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid-params",
+        ),
+        (
+            "bad params (not JSON)",
+            server
+                .submit(&[("image", &image), ("params", b"paths=8")], &[])
+                .await,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid-params",
+        ),
+        (
+            "wrong-size mask",
+            server
+                .submit(&[("image", &image), ("mask", &small_mask)], &[])
+                .await,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid-input",
+        ),
+        (
+            "missing image",
+            server
+                .submit(&[("params", QUICK_PARAMS.as_bytes())], &[])
+                .await,
+            StatusCode::BAD_REQUEST,
+            "bad-request",
+        ),
+        (
+            "unknown form field",
+            server
+                .submit(&[("image", &image), ("picture", &image)], &[])
+                .await,
+            StatusCode::BAD_REQUEST,
+            "bad-request",
+        ),
+        (
+            "JSON body with invalid base64",
+            server
+                .post_json("/v1/jobs", &json!({ "image": "%%%not base64%%%" }))
+                .await,
+            StatusCode::BAD_REQUEST,
+            "bad-request",
+        ),
+        (
+            "unknown job id",
+            server.get(&format!("/v1/jobs/{UNKNOWN_ID}")).await,
+            StatusCode::NOT_FOUND,
+            "job-not-found",
+        ),
+        (
+            "malformed job id",
+            server.get("/v1/jobs/12345").await,
+            StatusCode::BAD_REQUEST,
+            "malformed-job-id",
+        ),
+        (
+            "malformed id on a result",
+            server.get("/v1/jobs/job_..%2F..%2Fetc/svg").await,
+            StatusCode::BAD_REQUEST,
+            "malformed-job-id",
+        ),
+        (
+            "results of an unknown job",
+            server
+                .get(&format!("/v1/jobs/{UNKNOWN_ID}/scene.json"))
+                .await,
+            StatusCode::NOT_FOUND,
+            "job-not-found",
+        ),
+        (
+            "bad list limit",
+            server.get("/v1/jobs?limit=100000").await,
+            StatusCode::BAD_REQUEST,
+            "bad-query",
+        ),
+        (
+            "bad list status",
+            server.get("/v1/jobs?status=done").await,
+            StatusCode::BAD_REQUEST,
+            "bad-query",
+        ),
+        (
+            "unknown route",
+            server.get("/v2/things").await,
+            StatusCode::NOT_FOUND,
+            "route-not-found",
+        ),
+        (
+            "wrong method",
+            server
+                .request(Method::PUT, "/v1/jobs", &[], Vec::new())
+                .await,
+            StatusCode::METHOD_NOT_ALLOWED,
+            "method-not-allowed",
+        ),
+    ];
+    for (name, reply, status, code) in cases {
+        assert_eq!(reply.status, status, "{name}: {}", reply.text());
+        assert_eq!(problem(&reply)["code"], code, "{name}");
+    }
+    let too_many = problem(&server.submit(&[("image", &big_image)], &[]).await);
+    assert_eq!(
+        (too_many["limit"].as_u64(), too_many["actual"].as_u64()),
+        (Some(2000), Some(4096))
+    );
+    // Nothing above created a job.
+    assert_eq!(server.get("/v1/jobs").await.json()["items"], json!([]));
+}
+
+#[tokio::test]
+async fn api_keys_guard_v1_and_jobs_are_private_to_their_key() {
+    let dir = DataDir::new("auth");
+    let server = Server::start(
+        &dir.0,
+        &["--api-keys", "alpha-key,beta-key", "--workers", "1"],
+    );
+    let alpha = [("authorization", "Bearer alpha-key")];
+    let beta = [("authorization", "Bearer beta-key")];
+
+    let anonymous = server.get("/v1/jobs").await;
+    assert_eq!(anonymous.status, StatusCode::UNAUTHORIZED);
+    assert_eq!(problem(&anonymous)["code"], "unauthorized");
+    let wrong = server
+        .request(
+            Method::GET,
+            "/v1/jobs",
+            &[("authorization", "Bearer nope")],
+            Vec::new(),
+        )
+        .await;
+    assert_eq!(wrong.status, StatusCode::UNAUTHORIZED);
+    assert_eq!(
+        server.get("/healthz").await.status,
+        StatusCode::OK,
+        "operations endpoints need no key"
+    );
+
+    let created = server
+        .submit(
+            &[("image", &test_png(32)), ("params", LONG_PARAMS.as_bytes())],
+            &alpha,
+        )
+        .await;
+    // LONG_PARAMS is over the default iteration budget: refused, with the key accepted.
+    assert_eq!(
+        created.status,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "{}",
+        created.text()
+    );
+    let created = server
+        .submit(
+            &[
+                ("image", &test_png(32)),
+                ("params", QUICK_PARAMS.as_bytes()),
+            ],
+            &alpha,
+        )
+        .await;
+    assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
+    let id = created.json()["id"].as_str().unwrap().to_owned();
+
+    let own = server
+        .request(Method::GET, &format!("/v1/jobs/{id}"), &alpha, Vec::new())
+        .await;
+    assert_eq!(own.status, StatusCode::OK);
+    let other = server
+        .request(Method::GET, &format!("/v1/jobs/{id}"), &beta, Vec::new())
+        .await;
+    assert_eq!(other.status, StatusCode::NOT_FOUND);
+    assert_eq!(problem(&other)["code"], "job-not-found");
+    let other_cancel = server
+        .request(
+            Method::POST,
+            &format!("/v1/jobs/{id}/cancel"),
+            &beta,
+            Vec::new(),
+        )
+        .await;
+    assert_eq!(other_cancel.status, StatusCode::NOT_FOUND);
+    let other_list = server
+        .request(Method::GET, "/v1/jobs", &beta, Vec::new())
+        .await
+        .json();
+    assert_eq!(other_list["items"], json!([]));
+    let own_list = server
+        .request(Method::GET, "/v1/jobs", &alpha, Vec::new())
+        .await
+        .json();
+    assert_eq!(own_list["items"][0]["id"], id.as_str());
+}
+
+#[tokio::test]
+async fn operations_endpoints_answer() {
+    let dir = DataDir::new("ops");
+    let server = Server::start(&dir.0, &["--workers", "1"]);
+    let health = server.get("/healthz").await;
+    assert_eq!(
+        (health.status, health.json()["status"].clone()),
+        (StatusCode::OK, json!("ok"))
+    );
+    let ready = server.get("/readyz").await;
+    assert_eq!(ready.status, StatusCode::OK, "{}", ready.text());
+    assert!(
+        ready.header("x-request-id").is_some(),
+        "every response carries a request id"
+    );
+    let metrics = server.get("/metrics").await;
+    assert_eq!(metrics.status, StatusCode::OK);
+    let text = metrics.text();
+    for line in [
+        "covec_jobs_queued 0",
+        "covec_jobs_running 0",
+        "covec_workers 1",
+    ] {
+        assert!(
+            text.lines().any(|l| l == line),
+            "missing `{line}` in\n{text}"
+        );
+    }
+    assert!(
+        text.contains(
+            "covec_http_request_duration_seconds_bucket{method=\"GET\",route=\"/readyz\""
+        ),
+        "{text}"
+    );
+    server.stop();
+}
+
+#[tokio::test]
+async fn listing_pages_through_jobs_newest_first() {
+    let dir = DataDir::new("list");
+    let server = Server::start(&dir.0, &["--workers", "1"]);
+    let mut ids = Vec::new();
+    for _ in 0..3 {
+        let created = server
+            .submit(
+                &[
+                    ("image", &test_png(32)),
+                    ("params", QUICK_PARAMS.as_bytes()),
+                ],
+                &[],
+            )
+            .await;
+        assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
+        assert_eq!(
+            created.header("location").unwrap(),
+            format!("/v1/jobs/{}", created.json()["id"].as_str().unwrap())
+        );
+        ids.push(created.json()["id"].as_str().unwrap().to_owned());
+    }
+    let first = server.get("/v1/jobs?limit=2").await.json();
+    let cursor = first["next_cursor"]
+        .as_str()
+        .expect("a second page")
+        .to_owned();
+    let second = server
+        .get(&format!("/v1/jobs?limit=2&cursor={cursor}"))
+        .await
+        .json();
+    assert!(second["next_cursor"].is_null(), "{second}");
+    let listed: Vec<_> = first["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .chain(second["items"].as_array().unwrap())
+        .map(|job| job["id"].as_str().unwrap().to_owned())
+        .collect();
+    ids.reverse();
+    assert_eq!(listed, ids);
+}
+
+/// Every (method, path) the router serves is in api/openapi.yaml, and every operation there is
+/// served. Paths are compared in the OpenAPI form (`{id}`), which the router uses too.
+#[test]
+fn openapi_document_matches_the_router() {
+    let document =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/api/openapi.yaml")).unwrap();
+    assert!(
+        document.starts_with("openapi: 3.1"),
+        "an OpenAPI 3.1 document"
+    );
+    let mut documented = BTreeSet::new();
+    let mut in_paths = false;
+    let mut current_path = None;
+    for line in document.lines() {
+        if !line.starts_with(' ') && !line.is_empty() {
+            in_paths = line == "paths:";
+            continue;
+        }
+        if !in_paths {
+            continue;
+        }
+        if let Some(path) = line
+            .strip_prefix("  /")
+            .and_then(|rest| rest.strip_suffix(':'))
+        {
+            current_path = Some(format!("/{path}"));
+        } else if let Some(method) = line
+            .strip_prefix("    ")
+            .and_then(|rest| rest.strip_suffix(':'))
+            && ["get", "post", "put", "patch", "delete"].contains(&method)
+        {
+            documented.insert((
+                method.to_uppercase(),
+                current_path.clone().expect("a method under a path"),
+            ));
+        }
+    }
+    let served: BTreeSet<_> = covec::service::endpoints()
+        .iter()
+        .map(|endpoint| (endpoint.method.to_string(), endpoint.path.to_owned()))
+        .collect();
+    assert_eq!(
+        served.difference(&documented).collect::<Vec<_>>(),
+        Vec::<&(String, String)>::new(),
+        "undocumented"
+    );
+    assert_eq!(
+        documented.difference(&served).collect::<Vec<_>>(),
+        Vec::<&(String, String)>::new(),
+        "not served"
+    );
+}

@@ -1,0 +1,403 @@
+//! Jobs end to end through the real pipeline: success and results, events, cancel, queue
+//! limits, idempotency, restart recovery. Tiny images and iteration counts keep each job short.
+
+mod service_support;
+
+use std::time::Duration;
+
+use base64::Engine;
+use hyper::{Method, StatusCode};
+use serde_json::json;
+use service_support::{DataDir, LONG_PARAMS, QUICK_PARAMS, Server, problem, test_png};
+
+const PATIENCE: Duration = Duration::from_secs(60);
+/// Lets LONG_PARAMS through.
+const BIG_BUDGET: &[&str] = &["--max-iterations", "10000000"];
+
+fn terminal(job: &serde_json::Value) -> bool {
+    ["succeeded", "failed", "canceled"].contains(&job["status"].as_str().unwrap())
+}
+
+async fn submit_quick(server: &Server) -> String {
+    let created = server
+        .submit(
+            &[
+                ("image", &test_png(48)),
+                ("params", QUICK_PARAMS.as_bytes()),
+            ],
+            &[],
+        )
+        .await;
+    assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
+    created.json()["id"].as_str().unwrap().to_owned()
+}
+
+async fn submit_long(server: &Server) -> String {
+    let created = server
+        .submit(
+            &[("image", &test_png(64)), ("params", LONG_PARAMS.as_bytes())],
+            &[],
+        )
+        .await;
+    assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
+    created.json()["id"].as_str().unwrap().to_owned()
+}
+
+#[tokio::test]
+async fn a_job_succeeds_and_serves_every_result() {
+    let dir = DataDir::new("success");
+    let server = Server::start(&dir.0, &["--workers", "1"]);
+    let id = submit_quick(&server).await;
+    let job = server.wait_for(&id, PATIENCE, terminal).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    assert_eq!(
+        job["progress"]["fraction"].as_f64().map(|f| f > 0.99),
+        Some(true),
+        "{job}"
+    );
+    assert!(
+        job["completed_at"].is_string() && job["expires_at"].is_string(),
+        "{job}"
+    );
+
+    let svg = server.get(&format!("/v1/jobs/{id}/svg")).await;
+    assert_eq!(
+        (svg.status, svg.header("content-type")),
+        (StatusCode::OK, Some("image/svg+xml"))
+    );
+    let document = svg.text();
+    let tree = roxmltree::Document::parse(&document).expect("well-formed SVG");
+    let groups: Vec<_> = tree
+        .descendants()
+        .filter_map(|node| node.attribute("id"))
+        .collect();
+    for layer in ["albedo", "shade", "light"] {
+        assert!(
+            groups.contains(&layer),
+            "no <g id=\"{layer}\"> in {document}"
+        );
+        let layer_svg = server
+            .get(&format!("/v1/jobs/{id}/layers/{layer}.svg"))
+            .await;
+        assert_eq!(layer_svg.status, StatusCode::OK, "{layer}");
+        roxmltree::Document::parse(&layer_svg.text()).expect("well-formed layer SVG");
+    }
+    let scene = server.get(&format!("/v1/jobs/{id}/scene.json")).await;
+    assert_eq!(scene.status, StatusCode::OK);
+    let scene: covec::scene::Scene =
+        serde_json::from_slice(&scene.body).expect("the scene loads back");
+    assert!(scene.path_count() <= 8, "the path budget holds");
+
+    let previews = server.get(&format!("/v1/jobs/{id}/previews")).await.json();
+    let items = previews["items"].as_array().unwrap();
+    assert!(
+        !items.is_empty(),
+        "every stage leaves a preview: {previews}"
+    );
+    for item in items {
+        let png = server.get(item["url"].as_str().unwrap()).await;
+        assert_eq!(
+            (png.status, png.header("content-type")),
+            (StatusCode::OK, Some("image/png"))
+        );
+        assert!(png.body.starts_with(b"\x89PNG"));
+    }
+    let missing = server
+        .get(&format!("/v1/jobs/{id}/layers/shadow.svg"))
+        .await;
+    assert_eq!(problem(&missing)["code"], "result-not-found");
+    let missing = server
+        .get(&format!("/v1/jobs/{id}/previews/nope.png"))
+        .await;
+    assert_eq!(problem(&missing)["code"], "result-not-found");
+
+    assert_eq!(
+        server
+            .request(Method::DELETE, &format!("/v1/jobs/{id}"), &[], Vec::new())
+            .await
+            .status,
+        StatusCode::NO_CONTENT
+    );
+    assert_eq!(
+        server.get(&format!("/v1/jobs/{id}")).await.status,
+        StatusCode::NOT_FOUND
+    );
+    assert!(
+        !dir.0.join("jobs").join(&id).exists(),
+        "DELETE removes the job's files"
+    );
+}
+
+#[tokio::test]
+async fn json_submission_with_base64_and_idempotency_key() {
+    let dir = DataDir::new("json");
+    let server = Server::start(&dir.0, &["--workers", "1"]);
+    let image = base64::engine::general_purpose::STANDARD.encode(test_png(32));
+    let params: serde_json::Value = serde_json::from_str(QUICK_PARAMS).unwrap();
+    let body = json!({ "image": format!("data:image/png;base64,{image}"), "params": params });
+    let key = [
+        ("content-type", "application/json"),
+        ("idempotency-key", "order-42"),
+    ];
+    let first = server
+        .request(
+            Method::POST,
+            "/v1/jobs",
+            &key,
+            body.to_string().into_bytes(),
+        )
+        .await;
+    assert_eq!(first.status, StatusCode::CREATED, "{}", first.text());
+    let again = server
+        .request(
+            Method::POST,
+            "/v1/jobs",
+            &key,
+            body.to_string().into_bytes(),
+        )
+        .await;
+    assert_eq!(again.status, StatusCode::CREATED);
+    assert_eq!(again.header("idempotent-replayed"), Some("true"));
+    assert_eq!(
+        again.json()["id"],
+        first.json()["id"],
+        "same key + same body → same job"
+    );
+    let changed = json!({ "image": image, "params": { "paths": 9 } });
+    let conflict = server
+        .request(
+            Method::POST,
+            "/v1/jobs",
+            &key,
+            changed.to_string().into_bytes(),
+        )
+        .await;
+    assert_eq!(conflict.status, StatusCode::UNPROCESSABLE_ENTITY);
+    assert_eq!(problem(&conflict)["code"], "idempotency-key-reused");
+    let id = first.json()["id"].as_str().unwrap().to_owned();
+    let job = server.wait_for(&id, PATIENCE, terminal).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+}
+
+#[tokio::test]
+async fn events_stream_progress_and_end_with_the_final_status() {
+    let dir = DataDir::new("events");
+    let server = Server::start(&dir.0, &["--workers", "1"]);
+    let id = submit_quick(&server).await;
+    let events = server
+        .events(&format!("/v1/jobs/{id}/events"), PATIENCE)
+        .await;
+    let (last_name, last_data) = events.last().expect("some events");
+    assert_eq!(last_name, "completed");
+    let last: serde_json::Value = serde_json::from_str(last_data).unwrap();
+    assert_eq!(last["status"], "succeeded", "{last}");
+    assert!(
+        events[..events.len() - 1]
+            .iter()
+            .all(|(name, _)| name == "progress"),
+        "{events:?}"
+    );
+    // A finished job's stream is just its final event.
+    let replay = server
+        .events(&format!("/v1/jobs/{id}/events"), PATIENCE)
+        .await;
+    assert_eq!(replay.len(), 1);
+    assert_eq!(replay[0].0, "completed");
+}
+
+#[tokio::test]
+async fn cancel_stops_a_running_job_and_frees_the_worker() {
+    let dir = DataDir::new("cancel");
+    let mut args = vec!["--workers", "1"];
+    args.extend_from_slice(BIG_BUDGET);
+    let server = Server::start(&dir.0, &args);
+    let long = submit_long(&server).await;
+    let quick = submit_quick(&server).await;
+    server
+        .wait_for(&long, PATIENCE, |job| {
+            job["status"] == "running" && job["progress"].is_object()
+        })
+        .await;
+    let queued = server.get(&format!("/v1/jobs/{quick}")).await.json();
+    assert_eq!(
+        (queued["status"].clone(), queued["queue_position"].clone()),
+        (json!("queued"), json!(0))
+    );
+
+    let cancel = server
+        .request(
+            Method::POST,
+            &format!("/v1/jobs/{long}/cancel"),
+            &[],
+            Vec::new(),
+        )
+        .await;
+    assert_eq!(cancel.status, StatusCode::ACCEPTED, "{}", cancel.text());
+    let canceled = server
+        .wait_for(&long, Duration::from_secs(10), terminal)
+        .await;
+    assert_eq!(
+        (
+            canceled["status"].clone(),
+            canceled["cancel_reason"].clone()
+        ),
+        (json!("canceled"), json!("user"))
+    );
+    let next = server.wait_for(&quick, PATIENCE, terminal).await;
+    assert_eq!(
+        next["status"], "succeeded",
+        "the freed worker runs the next job: {next}"
+    );
+    let results = server.get(&format!("/v1/jobs/{long}/svg")).await;
+    assert_eq!(
+        (results.status, problem(&results)["code"].clone()),
+        (StatusCode::CONFLICT, json!("job-not-succeeded"))
+    );
+    // Canceling a finished job changes nothing.
+    let again = server
+        .request(
+            Method::POST,
+            &format!("/v1/jobs/{long}/cancel"),
+            &[],
+            Vec::new(),
+        )
+        .await;
+    assert_eq!(
+        (again.status, again.json()["status"].clone()),
+        (StatusCode::OK, json!("canceled"))
+    );
+}
+
+#[tokio::test]
+async fn a_full_queue_answers_503_with_retry_after() {
+    let dir = DataDir::new("full");
+    let mut args = vec!["--workers", "1", "--max-queued", "1"];
+    args.extend_from_slice(BIG_BUDGET);
+    let server = Server::start(&dir.0, &args);
+    let running = submit_long(&server).await;
+    server
+        .wait_for(&running, PATIENCE, |job| job["status"] == "running")
+        .await;
+    let waiting = submit_long(&server).await;
+    let refused = server
+        .submit(
+            &[
+                ("image", &test_png(32)),
+                ("params", QUICK_PARAMS.as_bytes()),
+            ],
+            &[],
+        )
+        .await;
+    assert_eq!(
+        refused.status,
+        StatusCode::SERVICE_UNAVAILABLE,
+        "{}",
+        refused.text()
+    );
+    let seconds: u64 = refused
+        .header("retry-after")
+        .expect("Retry-After")
+        .parse()
+        .unwrap();
+    assert!(seconds >= 1);
+    assert_eq!(problem(&refused)["code"], "queue-full");
+    // Canceling the queued job makes room again.
+    let cancel = server
+        .request(
+            Method::POST,
+            &format!("/v1/jobs/{waiting}/cancel"),
+            &[],
+            Vec::new(),
+        )
+        .await;
+    assert_eq!(
+        (cancel.status, cancel.json()["status"].clone()),
+        (StatusCode::OK, json!("canceled"))
+    );
+    let accepted = server
+        .submit(
+            &[
+                ("image", &test_png(32)),
+                ("params", QUICK_PARAMS.as_bytes()),
+            ],
+            &[],
+        )
+        .await;
+    assert_eq!(accepted.status, StatusCode::CREATED, "{}", accepted.text());
+    server
+        .request(
+            Method::POST,
+            &format!("/v1/jobs/{running}/cancel"),
+            &[],
+            Vec::new(),
+        )
+        .await;
+}
+
+#[tokio::test]
+async fn the_time_limit_fails_a_job_with_a_clear_reason() {
+    let dir = DataDir::new("deadline");
+    let mut args = vec!["--workers", "1", "--job-time-limit", "1"];
+    args.extend_from_slice(BIG_BUDGET);
+    let server = Server::start(&dir.0, &args);
+    let id = submit_long(&server).await;
+    let job = server
+        .wait_for(&id, Duration::from_secs(30), terminal)
+        .await;
+    assert_eq!(job["status"], "failed", "{job}");
+    assert_eq!(job["error"]["code"], "time-limit", "{job}");
+    assert_eq!(job["cancel_reason"], "deadline", "{job}");
+}
+
+#[tokio::test]
+async fn a_restarted_server_serves_finished_jobs_and_reruns_interrupted_ones() {
+    let dir = DataDir::new("restart");
+    let mut args = vec!["--workers", "1", "--shutdown-grace", "0"];
+    args.extend_from_slice(BIG_BUDGET);
+    let server = Server::start(&dir.0, &args);
+    let done = submit_quick(&server).await;
+    assert_eq!(
+        server.wait_for(&done, PATIENCE, terminal).await["status"],
+        "succeeded"
+    );
+    let svg = server.get(&format!("/v1/jobs/{done}/svg")).await.body;
+    let scene = server
+        .get(&format!("/v1/jobs/{done}/scene.json"))
+        .await
+        .body;
+    let interrupted = submit_long(&server).await;
+    server
+        .wait_for(&interrupted, PATIENCE, |job| job["status"] == "running")
+        .await;
+    server.stop();
+
+    let server = Server::start(&dir.0, &args);
+    assert_eq!(
+        server.get(&format!("/v1/jobs/{done}/svg")).await.body,
+        svg,
+        "the same SVG after a restart"
+    );
+    assert_eq!(
+        server
+            .get(&format!("/v1/jobs/{done}/scene.json"))
+            .await
+            .body,
+        scene
+    );
+    let job = server.get(&format!("/v1/jobs/{interrupted}")).await.json();
+    assert!(
+        ["queued", "running"].contains(&job["status"].as_str().unwrap()),
+        "re-queued: {job}"
+    );
+    server
+        .request(
+            Method::POST,
+            &format!("/v1/jobs/{interrupted}/cancel"),
+            &[],
+            Vec::new(),
+        )
+        .await;
+    server
+        .wait_for(&interrupted, Duration::from_secs(10), terminal)
+        .await;
+}

@@ -1,0 +1,316 @@
+//! Shared by the service integration tests: starts the real `covec serve` binary on a loopback
+//! port with its own data directory, and talks HTTP/1.1 to it.
+
+#![allow(dead_code)] // each test binary uses a different part
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use http_body_util::{BodyExt, Full};
+use hyper::body::Bytes;
+use hyper::{Method, Request, StatusCode};
+use hyper_util::client::legacy::Client;
+use hyper_util::client::legacy::connect::HttpConnector;
+use hyper_util::rt::TokioExecutor;
+use serde_json::Value;
+
+/// A data directory under the system temp dir, removed on drop.
+pub struct DataDir(pub PathBuf);
+
+impl DataDir {
+    pub fn new(name: &str) -> Self {
+        static NEXT: AtomicUsize = AtomicUsize::new(0);
+        let path = std::env::temp_dir().join(format!(
+            "covec-{name}-{}-{}",
+            std::process::id(),
+            NEXT.fetch_add(1, Ordering::SeqCst)
+        ));
+        let _ = std::fs::remove_dir_all(&path);
+        std::fs::create_dir_all(&path).unwrap();
+        Self(path)
+    }
+}
+
+impl Drop for DataDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+pub struct Server {
+    child: Child,
+    pub base: String,
+    client: Client<HttpConnector, Full<Bytes>>,
+}
+
+pub struct Reply {
+    pub status: StatusCode,
+    pub headers: hyper::HeaderMap,
+    pub body: Bytes,
+}
+
+impl Reply {
+    pub fn json(&self) -> Value {
+        serde_json::from_slice(&self.body)
+            .unwrap_or_else(|error| panic!("{error}: {}", String::from_utf8_lossy(&self.body)))
+    }
+
+    pub fn header(&self, name: &str) -> Option<&str> {
+        self.headers.get(name).and_then(|value| value.to_str().ok())
+    }
+
+    pub fn text(&self) -> String {
+        String::from_utf8_lossy(&self.body).into_owned()
+    }
+}
+
+impl Server {
+    /// Starts `covec serve --addr 127.0.0.1:0 --data-dir DIR ARGS…` and waits for its address.
+    pub fn start(data_dir: &Path, args: &[&str]) -> Self {
+        let log = std::fs::File::create(data_dir.with_extension("log")).unwrap();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_covec"))
+            .args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
+            .arg(data_dir)
+            .args(args)
+            .env("COVEC_LOG", "info")
+            .stdout(Stdio::piped())
+            .stderr(log)
+            .spawn()
+            .expect("start covec serve");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let base = line
+            .trim()
+            .strip_prefix("covec serve: listening on ")
+            .unwrap_or_else(|| {
+                panic!(
+                    "unexpected first line {line:?}; log: {}",
+                    data_dir.with_extension("log").display()
+                )
+            })
+            .to_owned();
+        let client = Client::builder(TokioExecutor::new()).build_http();
+        Self {
+            child,
+            base,
+            client,
+        }
+    }
+
+    pub async fn request(
+        &self,
+        method: Method,
+        path: &str,
+        headers: &[(&str, &str)],
+        body: Vec<u8>,
+    ) -> Reply {
+        let mut builder = Request::builder()
+            .method(method)
+            .uri(format!("{}{path}", self.base));
+        for (name, value) in headers {
+            builder = builder.header(*name, *value);
+        }
+        let response = self
+            .client
+            .request(builder.body(Full::new(Bytes::from(body))).unwrap())
+            .await
+            .unwrap();
+        let (parts, body) = response.into_parts();
+        let body = body.collect().await.unwrap().to_bytes();
+        Reply {
+            status: parts.status,
+            headers: parts.headers,
+            body,
+        }
+    }
+
+    pub async fn get(&self, path: &str) -> Reply {
+        self.request(Method::GET, path, &[], Vec::new()).await
+    }
+
+    pub async fn post_json(&self, path: &str, json: &Value) -> Reply {
+        self.request(
+            Method::POST,
+            path,
+            &[("content-type", "application/json")],
+            json.to_string().into_bytes(),
+        )
+        .await
+    }
+
+    /// Submits a job as multipart with the given parts (name, bytes).
+    pub async fn submit(&self, parts: &[(&str, &[u8])], headers: &[(&str, &str)]) -> Reply {
+        let (content_type, body) = multipart(parts);
+        let mut all = vec![("content-type", content_type.as_str())];
+        all.extend_from_slice(headers);
+        self.request(Method::POST, "/v1/jobs", &all, body).await
+    }
+
+    /// Polls a job until `done` holds for it, at most `timeout`.
+    pub async fn wait_for(
+        &self,
+        id: &str,
+        timeout: Duration,
+        done: impl Fn(&Value) -> bool,
+    ) -> Value {
+        let started = Instant::now();
+        loop {
+            let job = self.get(&format!("/v1/jobs/{id}")).await;
+            assert_eq!(job.status, StatusCode::OK, "{}", job.text());
+            let job = job.json();
+            if done(&job) {
+                return job;
+            }
+            assert!(
+                started.elapsed() < timeout,
+                "job {id} not done after {timeout:?}: {job}"
+            );
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+
+    /// Reads a Server-Sent Events stream to its end: (event name, data) pairs.
+    pub async fn events(&self, path: &str, timeout: Duration) -> Vec<(String, String)> {
+        let request = Request::builder()
+            .uri(format!("{}{path}", self.base))
+            .header("accept", "text/event-stream")
+            .body(Full::new(Bytes::new()))
+            .unwrap();
+        let response = self.client.request(request).await.unwrap();
+        assert_eq!(response.status(), StatusCode::OK);
+        assert!(
+            response.headers()["content-type"]
+                .to_str()
+                .unwrap()
+                .starts_with("text/event-stream")
+        );
+        let body = tokio::time::timeout(timeout, response.into_body().collect())
+            .await
+            .expect("the event stream ends")
+            .unwrap()
+            .to_bytes();
+        let text = String::from_utf8(body.to_vec()).unwrap();
+        text.split("\n\n")
+            .filter_map(|block| {
+                let mut name = None;
+                let mut data = None;
+                for line in block.lines() {
+                    if let Some(value) = line.strip_prefix("event:") {
+                        name = Some(value.trim().to_owned());
+                    } else if let Some(value) = line.strip_prefix("data:") {
+                        data = Some(value.trim().to_owned());
+                    }
+                }
+                Some((name?, data?))
+            })
+            .collect()
+    }
+
+    /// SIGTERM, then wait for a clean exit.
+    pub fn stop(mut self) {
+        let pid = self.child.id().to_string();
+        Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+        let started = Instant::now();
+        while started.elapsed() < Duration::from_secs(20) {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                assert!(status.success(), "covec serve exited with {status}");
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        panic!("covec serve did not stop within 20 s of SIGTERM");
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+pub fn multipart(parts: &[(&str, &[u8])]) -> (String, Vec<u8>) {
+    let boundary = "covec-test-boundary-7d1f";
+    let mut body = Vec::new();
+    for (name, bytes) in parts {
+        body.extend_from_slice(format!("--{boundary}\r\n").as_bytes());
+        let disposition = if *name == "params" {
+            format!(
+                "Content-Disposition: form-data; name=\"{name}\"\r\nContent-Type: application/json\r\n\r\n"
+            )
+        } else {
+            format!(
+                "Content-Disposition: form-data; name=\"{name}\"; filename=\"{name}.png\"\r\nContent-Type: image/png\r\n\r\n"
+            )
+        };
+        body.extend_from_slice(disposition.as_bytes());
+        body.extend_from_slice(bytes);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+/// A small synthetic photo-like PNG: a shaded disc on a gradient background.
+pub fn test_png(size: u32) -> Vec<u8> {
+    let image = image::RgbImage::from_fn(size, size, |x, y| {
+        let (fx, fy) = (x as f32 / size as f32, y as f32 / size as f32);
+        let (dx, dy) = (fx - 0.5, fy - 0.5);
+        if dx * dx + dy * dy < 0.09 {
+            let shade = 1.0 - 0.8 * (dx + dy + 0.6).clamp(0.0, 1.0);
+            image::Rgb([(220.0 * shade) as u8 + 20, (60.0 * shade) as u8 + 10, 30])
+        } else {
+            image::Rgb([60 + (120.0 * fy) as u8, 120, 180 - (60.0 * fx) as u8])
+        }
+    });
+    png(&image::DynamicImage::ImageRgb8(image))
+}
+
+pub fn png(image: &image::DynamicImage) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    image
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .unwrap();
+    bytes
+}
+
+/// Parameters for a job that takes well under a second.
+pub const QUICK_PARAMS: &str = r#"{"paths": 8, "max_size": 48, "seed": 1,
+  "iterations": {"structure": 3, "reconstruction": 3, "refine_rounds": 1, "refine": 3, "polish": 3}}"#;
+
+/// Parameters for a job that runs for minutes unless canceled.
+pub const LONG_PARAMS: &str = r#"{"paths": 64, "max_size": 64, "seed": 1,
+  "iterations": {"structure": 100000, "reconstruction": 100000, "refine_rounds": 5, "refine": 100000, "polish": 100000}}"#;
+
+pub fn problem(reply: &Reply) -> Value {
+    assert_eq!(
+        reply.header("content-type"),
+        Some("application/problem+json"),
+        "status {}: {}",
+        reply.status,
+        reply.text()
+    );
+    let problem = reply.json();
+    assert_eq!(
+        problem["status"].as_u64(),
+        Some(u64::from(reply.status.as_u16())),
+        "{problem}"
+    );
+    assert!(
+        problem["type"]
+            .as_str()
+            .unwrap()
+            .starts_with("urn:covec:problem:"),
+        "{problem}"
+    );
+    assert!(!problem["detail"].as_str().unwrap().is_empty(), "{problem}");
+    problem
+}
