@@ -360,7 +360,8 @@ mod tests {
             (StatusCode::BAD_REQUEST, error::PROBLEM_JSON)
         );
         assert_eq!(body["code"], "malformed-job-id");
-        let (status, _, body) = call(app.clone(), "GET", "/").await;
+        // `/` is the web page; other unknown paths are problems.
+        let (status, _, body) = call(app.clone(), "GET", "/no-such-page").await;
         assert_eq!(
             (status, body["code"].as_str()),
             (StatusCode::NOT_FOUND, Some("route-not-found"))
