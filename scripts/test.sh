@@ -15,5 +15,9 @@ if [[ -z "${COVEC_SKIP_BROWSER:-}" ]]; then
                   try { const m = JSON.parse(line); if (m.executable && m.target?.name === "covec") console.log(m.executable); } catch {}
               }
           })')
-    node tests/browser/page.test.mjs --covec "$covec_bin"
+    # A private copy: a target directory shared with other checkouts may be rebuilt meanwhile.
+    browser_tmp=$(mktemp -d)
+    trap 'rm -rf "$browser_tmp"' EXIT
+    cp "$covec_bin" "$browser_tmp/covec"
+    node tests/browser/page.test.mjs --covec "$browser_tmp/covec"
 fi

@@ -384,6 +384,18 @@ async function run(context, base) {
     await page.fill("#max-size", JOB.maxSize);
     for (const [key, value] of Object.entries(JOB.iterations)) await page.fill(`#it-${key}`, value);
     await screenshot("form-filled");
+    // Record every stage line and bar value the page shows while the job runs.
+    await page.evaluate(() => {
+      window.seenProgress = [];
+      const record = () =>
+        window.seenProgress.push([document.getElementById("stage-name").textContent, document.getElementById("bar").value]);
+      new MutationObserver(record).observe(document.getElementById("progress"), {
+        subtree: true,
+        childList: true,
+        characterData: true,
+        attributes: true,
+      });
+    });
     const created = page.waitForResponse((r) => r.url().endsWith("/v1/jobs") && r.request().method() === "POST");
     await page.click("#submit");
     const response = await created;
@@ -391,10 +403,16 @@ async function run(context, base) {
     job = await response.json();
     facts.job_id = job.id;
     await page.waitForSelector("#progress:not([hidden])");
+    await screenshot("progress-started");
     await page.waitForSelector("#previews img", { timeout: JOB_TIMEOUT_MS });
-    const stage = await page.locator("#stage-name").textContent();
-    facts.stage_seen_while_running = stage;
     await screenshot("progress");
+    await page.waitForSelector("body[data-state=succeeded]", { timeout: JOB_TIMEOUT_MS });
+    const seen = await page.evaluate(() => window.seenProgress);
+    const stages = [...new Set(seen.map(([text]) => text).filter((text) => text.startsWith("Stage: ")))];
+    const fractions = seen.map(([, value]) => value).filter((value) => value > 0 && value < 1);
+    facts.stages_shown = stages;
+    check(stages.length >= 2, `the page showed too few stages while running: ${JSON.stringify(stages)}`);
+    check(fractions.length > 0, "the progress bar never showed a partial value");
   }, { later_steps_need_it: true });
 
   await step("the job completes and the result is shown beside the input", async () => {
