@@ -742,10 +742,12 @@ function fillDownloads() {
     [version.svgUrl, `${stem}.svg`, version.id ? "Layered SVG (with your colours)" : "Layered SVG"],
     [version.sceneUrl, `${stem}.scene.json`, "Scene JSON"],
   ];
+  // An edit recolours albedo paths only: the job's shade and light layers stay current.
   const layerUrls = version.layerUrls || original.layerUrls;
-  const layerNote = version.layerUrls || !version.id ? "" : " (before recolouring)";
   for (const name of LAYERS) {
-    links.push([layerUrls[name], `${stem}-${name}.svg`, `${name[0].toUpperCase()}${name.slice(1)} layer SVG${layerNote}`]);
+    const stale = name === "albedo" && version.id && !version.layerUrls;
+    const label = `${name[0].toUpperCase()}${name.slice(1)} layer SVG${stale ? " (before recolouring)" : ""}`;
+    links.push([layerUrls[name], `${stem}-${name}.svg`, label]);
   }
   ui.downloads.replaceChildren(
     ...links.map(([href, filename, label]) => {
