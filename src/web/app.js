@@ -330,6 +330,8 @@ async function poll() {
 function handleUpdate(data, eventType) {
   if (!session?.job || !data || typeof data !== "object") return;
   const job = session.job;
+  // A job that ended stays ended: a late reply (say, to a cancel request) must not revive it.
+  if (TERMINAL.has(job.status)) return;
   if (data.id === job.id) Object.assign(job, data);
   if (typeof data.status === "string") job.status = data.status;
   if (data.progress) job.progress = data.progress;
@@ -463,14 +465,15 @@ function showPreviews(items) {
 }
 
 async function finish(job) {
-  setState(job.status);
+  const status = job.status;
+  setState(status);
   showJob(job);
   await refreshPreviews(true);
-  if (job.status === "failed") {
+  if (status === "failed") {
     showError(ui.jobError, `The job failed. ${describeProblem(job.error, "No reason was given.")}`);
     return;
   }
-  if (job.status === "canceled") {
+  if (status === "canceled") {
     showError(ui.jobError, "The job was canceled.");
     return;
   }
