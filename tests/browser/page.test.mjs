@@ -66,6 +66,8 @@ const JOB = {
   iterations: { structure: "8", reconstruction: "8", "refine-rounds": "1", refine: "8", polish: "8" },
 };
 const JOB_TIMEOUT_MS = 120_000;
+/** Structure iterations of the job that is watched while it runs, then canceled. */
+const LONG_JOB_STRUCTURE_ITERATIONS = 4000;
 /** The request body limit the test's server gets, so that an oversized upload is quick to make. */
 const MAX_BODY_BYTES = 1_000_000;
 /** Issue 7's bar for "the page's rendering matches our renderer". */
@@ -408,7 +410,7 @@ async function run(context, base) {
   }
 
   let job;
-  await step("uploads the bench image with a small budget and shows live progress", async () => {
+  await step("uploads the bench image with a small budget", async () => {
     await page.setInputFiles("#image", FIXTURE);
     await page.fill("#paths", JOB.paths);
     await page.selectOption("#mode", JOB.mode);
@@ -416,18 +418,6 @@ async function run(context, base) {
     await page.fill("#max-size", JOB.maxSize);
     for (const [key, value] of Object.entries(JOB.iterations)) await page.fill(`#it-${key}`, value);
     await screenshot("form-filled");
-    // Record every stage line and bar value the page shows while the job runs.
-    await page.evaluate(() => {
-      window.seenProgress = [];
-      const record = () =>
-        window.seenProgress.push([document.getElementById("stage-name").textContent, document.getElementById("bar").value]);
-      new MutationObserver(record).observe(document.getElementById("progress"), {
-        subtree: true,
-        childList: true,
-        characterData: true,
-        attributes: true,
-      });
-    });
     const created = page.waitForResponse((r) => r.url().endsWith("/v1/jobs") && r.request().method() === "POST");
     await page.click("#submit");
     const response = await created;
@@ -436,15 +426,6 @@ async function run(context, base) {
     facts.job_id = job.id;
     await page.waitForSelector("#progress:not([hidden])");
     await screenshot("progress-started");
-    await page.waitForSelector("#previews img", { timeout: JOB_TIMEOUT_MS });
-    await screenshot("progress");
-    await page.waitForSelector("body[data-state=succeeded]", { timeout: JOB_TIMEOUT_MS });
-    const seen = await page.evaluate(() => window.seenProgress);
-    const stages = [...new Set(seen.map(([text]) => text).filter((text) => text.startsWith("Stage: ")))];
-    const fractions = seen.map(([, value]) => value).filter((value) => value > 0 && value < 1);
-    facts.stages_shown = stages;
-    check(stages.length >= 1, `the page showed no stage while running: ${JSON.stringify(stages)}`);
-    check(fractions.length > 0, "the progress bar never showed a partial value");
   }, { later_steps_need_it: true });
 
   await step("the job completes and the result is shown beside the input", async () => {
@@ -660,10 +641,32 @@ async function run(context, base) {
     await page.setViewportSize({ width: 1280, height: 900 });
   });
 
-  await step("a running job can be canceled and says so", async () => {
-    await page.fill("#it-structure", "3000");
+  await step("a longer job shows live progress and previews, and can be canceled", async () => {
+    // Long enough to be watched (and canceled) while it runs, even on an idle fast machine.
+    await page.fill("#it-structure", String(LONG_JOB_STRUCTURE_ITERATIONS));
     await page.click("#submit");
     await page.waitForSelector("body[data-state=running]", { timeout: JOB_TIMEOUT_MS });
+    await page.waitForFunction(
+      () => {
+        const bar = document.getElementById("bar").value;
+        return (
+          document.body.dataset.state === "running" &&
+          bar > 0 &&
+          bar < 1 &&
+          document.getElementById("stage-name").textContent.startsWith("Stage: ") &&
+          document.querySelector("#previews img")?.naturalWidth > 0
+        );
+      },
+      null,
+      { timeout: JOB_TIMEOUT_MS },
+    );
+    facts.live = await page.evaluate(() => ({
+      stage: document.getElementById("stage-name").textContent,
+      bar: +document.getElementById("bar").value.toFixed(3),
+      detail: document.getElementById("progress-detail").textContent,
+      previews: document.querySelectorAll("#previews img").length,
+    }));
+    await screenshot("progress-live");
     await page.click("#cancel");
     await page.waitForSelector("body[data-state=canceled]", { timeout: 30_000 });
     const message = await page.locator("#job-error").textContent();
