@@ -133,3 +133,14 @@ pub fn optimise(
     });
     Ok(report)
 }
+
+/// Keeps the albedo layer's first path, the opaque full-canvas base, exactly as initialised:
+/// browsers must see an opaque backdrop under the blend groups.
+pub(crate) fn hold_albedo_base(grads: &mut [crate::render::PathGrad]) {
+    if let Some(base) = grads.first_mut() {
+        *base = crate::render::PathGrad {
+            points: vec![Default::default(); base.points.len()],
+            ..Default::default()
+        };
+    }
+}

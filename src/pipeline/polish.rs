@@ -6,6 +6,7 @@ use super::Error;
 use super::stage::{Canvas, Stage, StageContext};
 use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
+use crate::pipeline::optimise::hold_albedo_base;
 use crate::render::Image;
 use crate::render::composite::{svg_model, svg_model_backward};
 use crate::scene::{LayerKind, Scene};
@@ -66,6 +67,9 @@ pub fn polish(
             canvas
                 .raster
                 .backward(paths, kind.base(), &d_layers[k], &mut grads);
+            if kind == LayerKind::Albedo {
+                hold_albedo_base(&mut grads);
+            }
             adams[k].step(paths, &grads);
         }
         loss = render_all(

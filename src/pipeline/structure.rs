@@ -12,6 +12,7 @@ use crate::decompose::mask::Mask;
 use crate::optim::loss::{mse, overlap_penalty};
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
+use crate::pipeline::optimise::hold_albedo_base;
 use crate::render::composite::{product, product_backward};
 use crate::render::{Image, PathGrad};
 use crate::scene::{LayerKind, Path, Scene};
@@ -120,6 +121,9 @@ pub fn optimise_structure(
             for g in grads.iter_mut() {
                 g.color = [0.0; 3];
             }
+            if kind == LayerKind::Albedo {
+                hold_albedo_base(grads);
+            }
             adam.step(paths, grads);
         }
         ctx.iteration(stages[0], it + 1, structure_iterations, Some(loss))?;
@@ -137,6 +141,7 @@ pub fn optimise_structure(
             &mut scratch,
             Some((&mut grads_a, &mut grads_i)),
         );
+        hold_albedo_base(&mut grads_a);
         adam_albedo.step(&mut scene.albedo.paths, &grads_a);
         adam_illum.step(&mut scene.shade.paths, &grads_i);
         ctx.iteration(stages[1], it + 1, reconstruction_iterations, Some(loss))?;
