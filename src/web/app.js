@@ -10,8 +10,6 @@ const TERMINAL = new Set(["succeeded", "failed", "canceled"]);
 const IMAGE_TYPES = new Set(["image/png", "image/jpeg", "image/webp"]);
 const LAYERS = ["albedo", "shade", "light"];
 const SVG_NS = "http://www.w3.org/2000/svg";
-/** Progress events can come many times a second; the previews list is re-read at most this often. */
-const PREVIEW_REFRESH_MS = 700;
 /** If the event stream drops, the job is polled this often instead. */
 const POLL_MS = 1000;
 
@@ -75,8 +73,6 @@ function newSession(inputUrl) {
     inputUrl,
     events: null,
     pollTimer: null,
-    previewTimer: null,
-    lastPreviewRefresh: 0,
     shownPreviews: new Set(),
     /** Versions shown, oldest first: the job's SVG, then one per edit. Undo pops. */
     versions: [],
@@ -279,10 +275,10 @@ function follow(job) {
     } catch {
       return; // keep-alives and non-JSON notes carry nothing to show
     }
-    handleUpdate(data, event.type);
+    handleUpdate(data);
   };
   // The service sends `progress` events (the job) while it runs, then one `completed`.
-  for (const type of ["message", "progress", "completed"]) {
+  for (const type of ["progress", "completed"]) {
     source.addEventListener(type, onEvent);
   }
   source.addEventListener("error", () => {
@@ -299,7 +295,6 @@ function stopFollowing() {
   session.events?.close();
   session.events = null;
   clearTimeout(session.pollTimer);
-  clearTimeout(session.previewTimer);
 }
 
 async function poll() {
@@ -309,7 +304,7 @@ async function poll() {
     const response = await fetch(jobUrl(current.job, "self", ""), { cache: "no-store" });
     if (current !== session) return;
     if (response.ok) {
-      handleUpdate(await response.json(), "poll");
+      handleUpdate(await response.json());
     } else if (response.status === 404 || response.status === 410) {
       showError(ui.jobError, `The job is gone. ${await problemMessage(response)}`);
       setState("failed");
@@ -324,35 +319,21 @@ async function poll() {
 }
 
 /**
- * One update from the event stream or a poll: a whole job, a bare progress object, or a
- * status note. Anything terminal ends the stream and shows the result or the error.
+ * One update of the job (from the event stream, a poll or a cancel reply): show it, add the
+ * previews that are new, and on a terminal status end the stream and show the outcome.
  */
-function handleUpdate(data, eventType) {
-  if (!session?.job || !data || typeof data !== "object") return;
-  const job = session.job;
+function handleUpdate(data) {
+  const job = session?.job;
+  if (!job || data?.id !== job.id) return;
   // A job that ended stays ended: a late reply (say, to a cancel request) must not revive it.
   if (TERMINAL.has(job.status)) return;
-  if (data.id === job.id) Object.assign(job, data);
-  if (typeof data.status === "string") job.status = data.status;
-  if (data.progress) job.progress = data.progress;
-  else if (data.fraction !== undefined || data.stage !== undefined) job.progress = data;
+  Object.assign(job, data);
   showJob(job);
-  if (Array.isArray(data.previews)) showPreviews(data.previews);
-  else if (eventType === "preview") refreshPreviews(true);
-  else schedulePreviewRefresh();
+  showPreviews(job.previews ?? []);
   if (TERMINAL.has(job.status)) {
     stopFollowing();
     finish(job);
   }
-}
-
-function stageOf(progress) {
-  const stage = progress?.stage;
-  if (!stage) return null;
-  if (typeof stage === "string") {
-    return { name: stage, index: progress.stage_index, count: progress.stage_count };
-  }
-  return stage;
 }
 
 function formatSeconds(seconds) {
@@ -365,7 +346,7 @@ function formatSeconds(seconds) {
 function showJob(job) {
   setState(job.status || "queued");
   const progress = job.progress || {};
-  const stage = stageOf(progress);
+  const stage = progress.stage;
   if (job.status === "queued") {
     const position = job.queue_position;
     ui.stageName.textContent = Number.isInteger(position) ? `Queued (position ${position + 1})` : "Queued";
@@ -404,7 +385,7 @@ ui.cancel.addEventListener("click", async () => {
   try {
     const response = await fetch(jobUrl(session.job, "cancel", "/cancel"), { method: "POST" });
     if (!response.ok) showError(ui.jobError, `Could not cancel. ${await problemMessage(response)}`);
-    else handleUpdate(await response.json().catch(() => ({})), "cancel");
+    else handleUpdate(await response.json().catch(() => null));
   } catch (error) {
     showError(ui.jobError, `Could not cancel: ${error.message}`);
   } finally {
@@ -412,44 +393,12 @@ ui.cancel.addEventListener("click", async () => {
   }
 });
 
-function schedulePreviewRefresh() {
-  const wait = session.lastPreviewRefresh + PREVIEW_REFRESH_MS - performance.now();
-  if (wait <= 0) {
-    refreshPreviews(false);
-  } else if (!session.previewTimer) {
-    session.previewTimer = setTimeout(() => {
-      if (session) session.previewTimer = null;
-      refreshPreviews(false);
-    }, wait);
-  }
-}
-
-/** Shows every stage preview the API lists that is not on the page yet, in the API's order. */
-async function refreshPreviews(force) {
-  const current = session;
-  if (!current?.job) return;
-  if (!force && performance.now() - current.lastPreviewRefresh < PREVIEW_REFRESH_MS) return;
-  current.lastPreviewRefresh = performance.now();
-  let list;
-  try {
-    const response = await fetch(jobUrl(current.job, "previews", "/previews"), { cache: "no-store" });
-    if (!response.ok) return;
-    list = await response.json();
-  } catch {
-    return;
-  }
-  if (current === session) showPreviews(Array.isArray(list) ? list : list.items || list.previews || []);
-}
-
-/** Adds the previews not on the page yet, in the server's order: names or `{name, url}`. */
-function showPreviews(items) {
-  for (const item of items) {
-    const name = typeof item === "string" ? item : item?.name;
-    if (!name || session.shownPreviews.has(name)) continue;
+/** Adds the stage previews (names, in the order the stages made them) not on the page yet. */
+function showPreviews(names) {
+  for (const name of names) {
+    if (session.shownPreviews.has(name)) continue;
     session.shownPreviews.add(name);
-    const url =
-      (typeof item === "object" && item.url) ||
-      `${jobUrl(session.job, "previews", "/previews")}/${encodeURIComponent(name)}.png`;
+    const url = `${jobUrl(session.job, "previews", "/previews")}/${encodeURIComponent(name)}.png`;
     const entry = document.createElement("li");
     const figure = document.createElement("figure");
     const img = document.createElement("img");
@@ -468,7 +417,6 @@ async function finish(job) {
   const status = job.status;
   setState(status);
   showJob(job);
-  await refreshPreviews(true);
   if (status === "failed") {
     showError(ui.jobError, `The job failed. ${describeProblem(job.error, "No reason was given.")}`);
     return;
