@@ -3,3 +3,21 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
+
+# The web page end to end (issue 7): headless Debian Chromium driven by playwright-core against a
+# real `covec serve` on a free loopback port with a fresh data directory. Screenshots go to
+# tests/artifacts/browser/. COVEC_SKIP_BROWSER=1 skips it.
+if [[ -z "${COVEC_SKIP_BROWSER:-}" ]]; then
+    scripts/setup-browser.sh
+    covec_bin=$(cargo build --bin covec --message-format=json-render-diagnostics \
+        | node -e 'let s = ""; process.stdin.on("data", (d) => (s += d)).on("end", () => {
+              for (const line of s.split("\n")) {
+                  try { const m = JSON.parse(line); if (m.executable && m.target?.name === "covec") console.log(m.executable); } catch {}
+              }
+          })')
+    # A private copy: a target directory shared with other checkouts may be rebuilt meanwhile.
+    browser_tmp=$(mktemp -d)
+    trap 'rm -rf "$browser_tmp"' EXIT
+    cp "$covec_bin" "$browser_tmp/covec"
+    node tests/browser/page.test.mjs --covec "$browser_tmp/covec"
+fi

@@ -16,3 +16,4 @@ pub mod scene;
 pub mod service;
 pub mod svg;
 pub mod synth;
+pub mod web;

@@ -248,3 +248,35 @@ fn bad_masks_and_parameters_are_refused() {
         .unwrap();
     assert!(matches!(canceled, pipeline::Error::Canceled));
 }
+
+#[test]
+fn auto_mode_tells_flat_artwork_from_photos() {
+    let run = |image: RgbImage| {
+        let inputs = Inputs {
+            image: DynamicImage::ImageRgb8(image),
+            albedo: None,
+            masks: Masks::None,
+        };
+        pipeline::run(&inputs, &Params::default(), &Quiet, &AtomicBool::new(false))
+            .unwrap()
+            .mode
+    };
+    // An icon: a few flat shapes on white (anti-aliased edges do not matter).
+    let icon = RgbImage::from_fn(64, 64, |x, y| {
+        let r2 = (x as i32 - 32).pow(2) + (y as i32 - 32).pow(2);
+        image::Rgb(if r2 < 100 {
+            [40, 40, 40]
+        } else if r2 < 700 {
+            [250, 200, 30]
+        } else {
+            [255, 255, 255]
+        })
+    });
+    assert_eq!(run(icon), Mode::Simple);
+    assert_eq!(run(synthetic_photo(64, 48)), Mode::Photo);
+    // A smooth, noiseless gradient (like an upscaled photo) is still a photo.
+    let gradient = RgbImage::from_fn(300, 200, |x, y| {
+        image::Rgb([(x * 255 / 299) as u8, (y * 255 / 199) as u8, 128])
+    });
+    assert_eq!(run(gradient), Mode::Photo);
+}

@@ -189,6 +189,10 @@ fn photo_stages_lower_the_loss_keep_the_budget_and_preserve_the_split() {
         assert!(l.after < l.before, "{name}: {l:?}");
     }
     assert_eq!(scene.path_count(), 20);
+    // The albedo base stays an opaque full-canvas rectangle (browsers need the opaque backdrop).
+    let base = &scene.albedo.paths[0];
+    let canvas = Path::rect(0.0, 0.0, SIZE as f32, SIZE as f32, base.color, 1.0);
+    assert_eq!((&base.points, base.opacity), (&canvas.points, 1.0));
     let split = report.split.unwrap();
     assert_eq!(split.shade_paths, scene.shade.paths.len());
     assert!(split.mean_change < 0.03, "{split:?}");

@@ -406,3 +406,32 @@ fn openapi_document_matches_the_router() {
         "not served"
     );
 }
+
+#[tokio::test]
+async fn cors_allows_configured_origins_only() {
+    let dir = DataDir::new("cors");
+    let server = Server::start(
+        &dir.0,
+        &["--cors-origins", "https://app.example", "--workers", "1"],
+    );
+    let preflight = [
+        ("origin", "https://app.example"),
+        ("access-control-request-method", "POST"),
+    ];
+    let allowed = server
+        .request(Method::OPTIONS, "/v1/jobs", &preflight, Vec::new())
+        .await;
+    assert_eq!(
+        allowed.header("access-control-allow-origin"),
+        Some("https://app.example")
+    );
+    let other = server
+        .request(
+            Method::GET,
+            "/v1/jobs",
+            &[("origin", "https://evil.example")],
+            Vec::new(),
+        )
+        .await;
+    assert_eq!(other.header("access-control-allow-origin"), None);
+}

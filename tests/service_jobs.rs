@@ -233,6 +233,7 @@ async fn cancel_stops_a_running_job_and_frees_the_worker() {
         )
         .await;
     assert_eq!(cancel.status, StatusCode::ACCEPTED, "{}", cancel.text());
+    assert_eq!(cancel.json()["cancel_requested"], true);
     let canceled = server
         .wait_for(&long, Duration::from_secs(10), terminal)
         .await;
@@ -400,4 +401,30 @@ async fn a_restarted_server_serves_finished_jobs_and_reruns_interrupted_ones() {
     server
         .wait_for(&interrupted, Duration::from_secs(10), terminal)
         .await;
+}
+
+#[tokio::test]
+async fn results_expire_after_the_retention_period() {
+    let dir = DataDir::new("retention");
+    let server = Server::start(&dir.0, &["--workers", "1", "--retention", "1"]);
+    let id = submit_quick(&server).await;
+    assert_eq!(
+        server.wait_for(&id, PATIENCE, terminal).await["status"],
+        "succeeded"
+    );
+    let job = server
+        .wait_for(&id, Duration::from_secs(10), |job| {
+            job["data_removed"] == true
+        })
+        .await;
+    assert!(job["urls"]["results"].is_null(), "{job}");
+    let gone = server.get(&format!("/v1/jobs/{id}/svg")).await;
+    assert_eq!(
+        (gone.status, problem(&gone)["code"].clone()),
+        (StatusCode::GONE, json!("data-removed"))
+    );
+    assert!(
+        !dir.0.join("jobs").join(&id).exists(),
+        "the files are removed"
+    );
 }

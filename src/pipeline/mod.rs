@@ -19,6 +19,7 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use crate::decompose;
+use crate::render::composite::svg_model;
 use crate::render::{Image, Rasterizer};
 use crate::scene::{LayerKind, Scene};
 
@@ -168,11 +169,14 @@ pub fn run(
 ) -> Result<Output, Error> {
     params.validate()?;
     let started = Instant::now();
-    let names: &'static [&'static str] = match params.mode {
-        Mode::Simple => &SIMPLE_STAGES,
-        _ => &PHOTO_STAGES,
+    let stage_names = |mode| -> &'static [&'static str] {
+        match mode {
+            Mode::Simple => &SIMPLE_STAGES,
+            _ => &PHOTO_STAGES,
+        }
     };
-    let mut stages = Stages::new(names, observer, cancel);
+    // `auto` is resolved by the decompose stage; until then, count the photo stages.
+    let mut stages = Stages::new(stage_names(params.mode), observer, cancel);
     let original = (inputs.image.width(), inputs.image.height());
 
     stages.begin()?;
@@ -180,6 +184,7 @@ pub fn run(
     observer.preview("00-input", &decomposition.target);
     observer.preview("00-albedo-map", &decomposition.albedo);
     stages.end();
+    stages.set_names(stage_names(decomposition.mode));
 
     stages.begin()?;
     let state = init::run(decomposition, params, original)?;
@@ -271,6 +276,12 @@ impl<'a> Stages<'a> {
         }
     }
 
+    /// Replaces the list of stage names (once the mode is known); the stages done keep their
+    /// indices.
+    pub fn set_names(&mut self, names: &'static [&'static str]) {
+        self.names = names;
+    }
+
     /// Starts the next stage, unless the run was canceled.
     pub fn begin(&mut self) -> Result<(), Error> {
         if self.cancel.load(Ordering::Relaxed) {
@@ -344,8 +355,8 @@ fn mask_overlay(target: &Image, layer: &init::LayerGroups) -> Image {
             (d - 1.0).clamp(0.0, 1.0)
         });
         for i in masked.mask.indices() {
-            for c in 0..3 {
-                out.data[3 * i + c] = 0.5 * target.data[3 * i + c] + 0.5 * tint[c];
+            for (c, &t) in tint.iter().enumerate() {
+                out.data[3 * i + c] = 0.5 * target.data[3 * i + c] + 0.5 * t;
             }
         }
     }
@@ -365,14 +376,9 @@ pub fn render_layers(scene: &Scene) -> [Image; 3] {
 
 /// clamp01(albedo · shade + light), as the SVG's blend modes show it.
 pub fn composite_layers([albedo, shade, light]: &[Image; 3]) -> Image {
-    let data = (0..albedo.data.len())
-        .map(|i| (albedo.data[i] * shade.data[i] + light.data[i]).clamp(0.0, 1.0))
-        .collect();
-    Image {
-        width: albedo.width,
-        height: albedo.height,
-        data,
-    }
+    let mut out = Image::default();
+    svg_model(albedo, shade, light, &mut out);
+    out
 }
 
 /// The scene as shown: its three layers rendered and composited.

@@ -134,13 +134,11 @@ pub fn optimise(
     Ok(report)
 }
 
-/// Keeps the albedo layer's first path, the opaque full-canvas base, exactly as initialised:
-/// browsers must see an opaque backdrop under the blend groups.
+/// Keeps the albedo layer's first path, the opaque full-canvas base, in place and opaque:
+/// browsers must see an opaque backdrop under the blend groups. Its colour stays trainable.
 pub(crate) fn hold_albedo_base(grads: &mut [crate::render::PathGrad]) {
     if let Some(base) = grads.first_mut() {
-        *base = crate::render::PathGrad {
-            points: vec![Default::default(); base.points.len()],
-            ..Default::default()
-        };
+        base.points.iter_mut().for_each(|p| *p = Default::default());
+        base.opacity = 0.0;
     }
 }

@@ -11,12 +11,16 @@ pub struct Region {
 
 /// Per-pixel error below this (Σ over channels of squared differences) is ignored. LayerVec: 0.025.
 pub const ERROR_FLOOR: f32 = 0.025;
-/// Number of quantile edges used to bin the error (LayerVec: 139).
-const QUANTILE_EDGES: usize = 139;
+/// Number of quantile edges used to bin the error, ends included: 4 gives three bins (terciles of
+/// the error above the floor). LayerVec uses 139; on covec-bench photos that fragments the error
+/// into 3-24 px components, so new paths start as specks. Terciles give 20-170 px regions and an
+/// 18% lower final MSE (6 bench photos at 64 paths: 0.00306 → 0.00252).
+const QUANTILE_EDGES: usize = 4;
 
 /// Up to `count` largest connected regions of similar, high error. The error (`width × height`
 /// values) is split into quantile bins; each bin's 4-connected components are ranked by size over
-/// all bins (LayerVec's `select_mask_by_conn_area`). Pixels below [`ERROR_FLOOR`] never count.
+/// all bins (LayerVec's `select_mask_by_conn_area`, with coarser bins, see [`QUANTILE_EDGES`]).
+/// Pixels below [`ERROR_FLOOR`] never count.
 pub fn high_error_regions(error: &[f32], width: usize, height: usize, count: usize) -> Vec<Region> {
     if count == 0 {
         return Vec::new();

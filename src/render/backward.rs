@@ -223,79 +223,65 @@ impl Band<'_> {
         }
 
         // 2. Per row: composite forwards keeping the colour below each path, then backwards.
+        // Row buffers are channel planes (R…, G…, B…) so the span loops vectorise.
         ws.row_color.resize(width * 3, 0.0);
         ws.row_grad.resize(width * 3, 0.0);
         for r in 0..rows {
-            for px in ws.row_color.chunks_exact_mut(3) {
-                px.copy_from_slice(&self.base);
+            for (plane, &v) in ws.row_color.chunks_exact_mut(width).zip(&self.base) {
+                plane.fill(v);
             }
             let mut below_len = 0;
             for (k, &slot) in ws.active.iter().enumerate() {
                 let span = ws.spans[k * rows + r];
-                if span.len() == 0 {
+                let n = span.len();
+                if n == 0 {
                     continue;
                 }
                 let path = &self.paths[out.paths[slot as usize].path as usize];
-                let (op, c) = (path.opacity, path.color);
                 let off = ws.offsets[k * rows + r] as usize;
-                let area = &ws.area[off..off + span.len()];
-                if ws.below.len() < below_len + 3 * span.len() {
-                    ws.below.resize(below_len + 3 * span.len(), 0.0);
+                if ws.below.len() < below_len + 3 * n {
+                    ws.below.resize(below_len + 3 * n, 0.0);
                 }
-                let below = &mut ws.below[below_len..below_len + 3 * span.len()];
-                below_len += 3 * span.len();
-                let color = &mut ws.row_color[3 * span.lo as usize..3 * span.end as usize];
-                for ((p, b), &acc) in color
-                    .chunks_exact_mut(3)
-                    .zip(below.chunks_exact_mut(3))
-                    .zip(area)
-                {
-                    b.copy_from_slice(p);
-                    let a = acc.abs().min(1.0) * op;
-                    p[0] += a * (c[0] - p[0]);
-                    p[1] += a * (c[1] - p[1]);
-                    p[2] += a * (c[2] - p[2]);
-                }
+                let below = &mut ws.below[below_len..below_len + 3 * n];
+                below_len += 3 * n;
+                let (lo, end) = (span.lo as usize, span.end as usize);
+                let (cr, rest) = ws.row_color.split_at_mut(width);
+                let (cg, cb) = rest.split_at_mut(width);
+                composite_span(
+                    &ws.area[off..off + n],
+                    path.opacity,
+                    path.color,
+                    [&mut cr[lo..end], &mut cg[lo..end], &mut cb[lo..end]],
+                    below,
+                );
             }
             let y = row0 + r;
-            ws.row_grad
-                .copy_from_slice(&self.d_out.data[y * width * 3..(y + 1) * width * 3]);
+            let d_row = &self.d_out.data[y * width * 3..(y + 1) * width * 3];
+            let (gr, rest) = ws.row_grad.split_at_mut(width);
+            let (gg, gb) = rest.split_at_mut(width);
+            for (x, px) in d_row.chunks_exact(3).enumerate() {
+                gr[x] = px[0];
+                gg[x] = px[1];
+                gb[x] = px[2];
+            }
             for (k, &slot) in ws.active.iter().enumerate().rev() {
                 let span = ws.spans[k * rows + r];
-                if span.len() == 0 {
+                let n = span.len();
+                if n == 0 {
                     continue;
                 }
                 let partial = &mut out.paths[slot as usize];
                 let path = &self.paths[partial.path as usize];
-                let (op, c) = (path.opacity, path.color);
                 let off = ws.offsets[k * rows + r] as usize;
-                let area = &mut ws.area[off..off + span.len()];
-                below_len -= 3 * span.len();
-                let below = &ws.below[below_len..below_len + 3 * span.len()];
-                let grad = &mut ws.row_grad[3 * span.lo as usize..3 * span.end as usize];
-                let (mut dc, mut dop) = ([0.0f32; 3], 0.0f32);
-                for ((g, b), acc) in grad
-                    .chunks_exact_mut(3)
-                    .zip(below.chunks_exact(3))
-                    .zip(area.iter_mut())
-                {
-                    let cov = acc.abs().min(1.0);
-                    let a = cov * op;
-                    dc[0] += g[0] * a;
-                    dc[1] += g[1] * a;
-                    dc[2] += g[2] * a;
-                    let da = g[0] * (c[0] - b[0]) + g[1] * (c[1] - b[1]) + g[2] * (c[2] - b[2]);
-                    dop += da * cov;
-                    *acc = if acc.abs() <= SATURATION {
-                        da * op * 1.0f32.copysign(*acc)
-                    } else {
-                        0.0
-                    };
-                    let keep = 1.0 - a;
-                    g[0] *= keep;
-                    g[1] *= keep;
-                    g[2] *= keep;
-                }
+                below_len -= 3 * n;
+                let (lo, end) = (span.lo as usize, span.end as usize);
+                let (dc, dop) = backward_span(
+                    &mut ws.area[off..off + n],
+                    path.opacity,
+                    path.color,
+                    [&mut gr[lo..end], &mut gg[lo..end], &mut gb[lo..end]],
+                    &ws.below[below_len..below_len + 3 * n],
+                );
                 for (sum, d) in partial.color.iter_mut().zip(dc) {
                     *sum += d as f64;
                 }
@@ -329,6 +315,166 @@ impl Band<'_> {
                 &mut out.verts[start..start + fp.verts.len()],
                 lookup,
             );
+        }
+    }
+}
+
+/// "Over" for one path across one span: saves the colour below (`below` = R, G, B planes of the
+/// span) and composites `color` with alpha `min(1, |area|) · opacity` into the row planes.
+#[inline(always)]
+fn composite_span(
+    area: &[f32],
+    opacity: f32,
+    color: [f32; 3],
+    row: [&mut [f32]; 3],
+    below: &mut [f32],
+) {
+    let n = area.len();
+    let [r, g, b] = row;
+    let (r, g, b) = (&mut r[..n], &mut g[..n], &mut b[..n]);
+    let (br, rest) = below.split_at_mut(n);
+    let (bg, bb) = rest.split_at_mut(n);
+    let (bb, [cr, cg, cb]) = (&mut bb[..n], color);
+    br.copy_from_slice(r);
+    bg.copy_from_slice(g);
+    bb.copy_from_slice(b);
+    for i in 0..n {
+        let a = area[i].abs().min(1.0) * opacity;
+        r[i] += a * (cr - r[i]);
+        g[i] += a * (cg - g[i]);
+        b[i] += a * (cb - b[i]);
+    }
+}
+
+/// Lanes of the span reductions: a fixed width, so the summation order (and so every bit of the
+/// result) is the same on every machine, while the compiler can vectorise the lanes.
+const LANES: usize = 8;
+
+/// The backward of [`composite_span`]: given dL/d(colour above) in `grad` (planes), returns
+/// dL/d(colour) and dL/d(opacity) of the path over the span, overwrites `area` with
+/// dL/d(signed area) and turns `grad` into dL/d(colour below).
+#[inline(always)]
+fn backward_span(
+    area: &mut [f32],
+    opacity: f32,
+    color: [f32; 3],
+    grad: [&mut [f32]; 3],
+    below: &[f32],
+) -> ([f32; 3], f32) {
+    let n = area.len();
+    let [gr, gg, gb] = grad;
+    let (br, bg, bb) = (&below[..n], &below[n..2 * n], &below[2 * n..3 * n]);
+    let mut sums = Lanes::default();
+    let full = n - n % LANES;
+    for i in (0..full).step_by(LANES) {
+        let s = i..i + LANES;
+        sums.step(
+            lanes_mut(&mut area[s.clone()]),
+            [
+                lanes_mut(&mut gr[s.clone()]),
+                lanes_mut(&mut gg[s.clone()]),
+                lanes_mut(&mut gb[s.clone()]),
+            ],
+            [lanes(&br[s.clone()]), lanes(&bg[s.clone()]), lanes(&bb[s])],
+            opacity,
+            color,
+        );
+    }
+    if full < n {
+        // The tail, zero-padded: padding lanes have zero coverage and gradient, so they add
+        // exactly nothing.
+        let s = full..n;
+        let pad = |v: &[f32]| {
+            let mut a = [0.0f32; LANES];
+            a[..v.len()].copy_from_slice(v);
+            a
+        };
+        let mut t_area = pad(&area[s.clone()]);
+        let mut t_grad = [
+            pad(&gr[s.clone()]),
+            pad(&gg[s.clone()]),
+            pad(&gb[s.clone()]),
+        ];
+        let t_below = [
+            pad(&br[s.clone()]),
+            pad(&bg[s.clone()]),
+            pad(&bb[s.clone()]),
+        ];
+        let [tr, tg, tb] = &mut t_grad;
+        sums.step(
+            &mut t_area,
+            [tr, tg, tb],
+            [&t_below[0], &t_below[1], &t_below[2]],
+            opacity,
+            color,
+        );
+        let m = n - full;
+        area[s.clone()].copy_from_slice(&t_area[..m]);
+        gr[s.clone()].copy_from_slice(&t_grad[0][..m]);
+        gg[s.clone()].copy_from_slice(&t_grad[1][..m]);
+        gb[s].copy_from_slice(&t_grad[2][..m]);
+    }
+    let sum = |v: [f32; LANES]| v.iter().sum::<f32>();
+    (
+        [sum(sums.color[0]), sum(sums.color[1]), sum(sums.color[2])],
+        sum(sums.opacity),
+    )
+}
+
+fn lanes_mut(v: &mut [f32]) -> &mut [f32; LANES] {
+    v.try_into().expect("a LANES-long chunk")
+}
+
+fn lanes(v: &[f32]) -> &[f32; LANES] {
+    v.try_into().expect("a LANES-long chunk")
+}
+
+/// Per-lane partial sums of dL/d(colour) and dL/d(opacity).
+#[derive(Default)]
+struct Lanes {
+    color: [[f32; LANES]; 3],
+    opacity: [f32; LANES],
+}
+
+impl Lanes {
+    #[inline(always)]
+    fn step(
+        &mut self,
+        area: &mut [f32; LANES],
+        grad: [&mut [f32; LANES]; 3],
+        below: [&[f32; LANES]; 3],
+        opacity: f32,
+        color: [f32; 3],
+    ) {
+        let [gr, gg, gb] = grad;
+        let [br, bg, bb] = below;
+        let [cr, cg, cb] = color;
+        // Whole-array steps in local copies: the shape the SLP vectoriser recognises.
+        let acc = *area;
+        let cov: [f32; LANES] = std::array::from_fn(|l| {
+            let v = acc[l].abs();
+            if v < 1.0 { v } else { 1.0 }
+        });
+        let a: [f32; LANES] = std::array::from_fn(|l| cov[l] * opacity);
+        let (r, g, b) = (*gr, *gg, *gb);
+        let da: [f32; LANES] = std::array::from_fn(|l| {
+            r[l] * (cr - br[l]) + g[l] * (cg - bg[l]) + b[l] * (cb - bb[l])
+        });
+        for l in 0..LANES {
+            self.color[0][l] += r[l] * a[l];
+            self.color[1][l] += g[l] * a[l];
+            self.color[2][l] += b[l] * a[l];
+            self.opacity[l] += da[l] * cov[l];
+            let unsaturated = acc[l].abs() <= SATURATION;
+            area[l] = if unsaturated {
+                da[l] * opacity * 1.0f32.copysign(acc[l])
+            } else {
+                0.0
+            };
+            let keep = 1.0 - a[l];
+            gr[l] = r[l] * keep;
+            gg[l] = g[l] * keep;
+            gb[l] = b[l] * keep;
         }
     }
 }

@@ -11,8 +11,9 @@
 //!
 //! # How
 //! Each cubic is flattened at uniform parameters `t_k = k/n`, `n` chosen from the control polygon
-//! so the polyline stays within [`FLATTEN_TOLERANCE`](crate::geom::bezier::FLATTEN_TOLERANCE)
-//! (0.1 px) of the curve. The polyline is scan-converted by signed-area accumulation (as font
+//! so the polyline stays within [`FLATTEN_TOLERANCE`]
+//! (0.1 px) of the curve, and at least [`MIN_LINES_PER_CUBIC`] (16) so that the gradients of
+//! nearly straight cubics' handles stay accurate. The polyline is scan-converted by signed-area accumulation (as font
 //! rasterisers do): the prefix sum of per-cell deltas along a row is the winding-weighted area
 //! of the outline inside each pixel, `acc`, and the coverage is `min(1, |acc|)`. That is the
 //! exact box-filtered area for outlines that do not overlap themselves inside a pixel; inside
@@ -25,7 +26,12 @@
 //!
 //! The canvas is processed in strips of [`STRIP_ROWS`] rows with rayon (the caller's current
 //! pool); every strip produces its own partial gradients, reduced in strip order, so results do
-//! not depend on the thread count. Per-thread buffers live in the [`Rasterizer`] and are reused.
+//! not depend on the thread count. Per-thread buffers live in the [`Rasterizer`] and are reused,
+//! so after the first call neither pass allocates. Work per path is proportional to the rows
+//! of its bounding box times the width of its edges' span in each row, never W×H×paths.
+//!
+//! For finite-difference checks, [`Rasterizer::render_f64`] evaluates the same forward in f64,
+//! and [`Flattening::Fixed`] pins the number of lines per cubic.
 
 mod backward;
 pub mod composite;

@@ -136,6 +136,7 @@ async fn create(
         progress: None,
         previews: Vec::new(),
         cancel_reason: None,
+        cancel_requested: false,
         error: None,
         idempotency: key.map(|key| Idempotency { key, fingerprint }),
         data_removed: false,
@@ -258,9 +259,7 @@ async fn cancel(
     } else {
         StatusCode::OK
     };
-    let mut body = serde_json::to_value(view(&state, &entry)).expect("views serialise");
-    body["cancel_requested"] = serde_json::Value::Bool(stopping);
-    Ok((status, Json(body)).into_response())
+    Ok((status, Json(view(&state, &entry))).into_response())
 }
 
 async fn delete(

@@ -157,8 +157,8 @@ where
     }
 }
 
-/// Every route of the service. Issue 7 adds the static web page at `/` (today `/` is a 404
-/// problem).
+/// Every API route of the service. The web page (`/`, [`crate::web::routes`]) is merged in
+/// [`app`]: it is not part of the API document.
 pub fn endpoints() -> Vec<Endpoint> {
     let mut all = jobs::endpoints();
     all.extend(results::endpoints());
@@ -175,6 +175,7 @@ pub fn app(state: AppState) -> Router {
     }
     let cors = cors_layer(&state.cors_origins);
     router
+        .merge(crate::web::routes())
         .fallback(|request: Request| async move {
             ApiError::RouteNotFound(request.uri().path().to_owned())
         })
@@ -360,7 +361,8 @@ mod tests {
             (StatusCode::BAD_REQUEST, error::PROBLEM_JSON)
         );
         assert_eq!(body["code"], "malformed-job-id");
-        let (status, _, body) = call(app.clone(), "GET", "/").await;
+        // `/` is the web page; other unknown paths are problems.
+        let (status, _, body) = call(app.clone(), "GET", "/no-such-page").await;
         assert_eq!(
             (status, body["code"].as_str()),
             (StatusCode::NOT_FOUND, Some("route-not-found"))

@@ -152,6 +152,9 @@ pub struct JobRecord {
     /// Preview names (`<name>.png` under `previews/`), in the order the stages produced them.
     pub previews: Vec<String>,
     pub cancel_reason: Option<CancelReason>,
+    /// A stop was asked for (by a user, the time limit or shutdown).
+    #[serde(default)]
+    pub cancel_requested: bool,
     pub error: Option<Problem>,
     pub idempotency: Option<Idempotency>,
     /// Results deleted after the retention period.
@@ -211,6 +214,8 @@ pub struct JobView {
     pub progress: Option<ProgressView>,
     pub params: Params,
     pub mode: Option<Mode>,
+    /// True once a stop was asked for; a running job then stops within one iteration.
+    pub cancel_requested: bool,
     pub cancel_reason: Option<CancelReason>,
     pub error: Option<Problem>,
     pub data_removed: bool,
@@ -261,6 +266,7 @@ impl JobView {
             progress: record.progress.clone(),
             params: record.params.clone(),
             mode: record.mode,
+            cancel_requested: record.cancel_requested,
             cancel_reason: record.cancel_reason,
             error: record.error.clone(),
             data_removed: record.data_removed,

@@ -89,6 +89,8 @@ impl JobEntry {
         let mut current = lock(&self.cancel_reason);
         current.get_or_insert(reason);
         self.cancel.store(true, Ordering::Relaxed);
+        self.record
+            .send_modify(|record| record.cancel_requested = true);
     }
 }
 
@@ -162,6 +164,7 @@ impl Queue {
                 record.status = Status::Queued;
                 record.started_at = None;
                 record.progress = None;
+                record.cancel_requested = false;
                 record.previews.clear();
                 store.remove_outputs(&record.id)?;
                 store.save(&record)?;
@@ -190,6 +193,7 @@ impl Queue {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads_per_job)
                 .thread_name(move |thread| format!("covec-pipeline-{index}-{thread}"))
+                .start_handler(|_| lower_thread_priority())
                 .build()?;
             let runner = Arc::clone(&queue);
             queue.runners_alive.fetch_add(1, Ordering::SeqCst);
@@ -383,7 +387,8 @@ impl Queue {
     /// Returns whether the job was running (the cancel is then still in progress).
     pub fn cancel(&self, entry: &JobEntry) -> Result<bool, ApiError> {
         let mut state = lock(&self.state);
-        match entry.record.borrow().status {
+        let status = entry.record.borrow().status;
+        match status {
             Status::Running => {
                 entry.request_cancel(CancelReason::User);
                 return Ok(true);
@@ -488,6 +493,12 @@ impl Queue {
                 continue;
             };
             state.running += 1;
+            // Marked running under the queue lock, so `cancel` never sees a job that is
+            // neither pending nor running.
+            entry.record.send_modify(|record| {
+                record.status = Status::Running;
+                record.started_at = Some(now_ms());
+            });
             drop(state);
             self.run_job(&entry, pool);
             lock(&self.state).running -= 1;
@@ -499,10 +510,6 @@ impl Queue {
     fn run_job(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) {
         let _span = info_span!("job", job_id = %entry.id).entered();
         let started = Instant::now();
-        entry.record.send_modify(|record| {
-            record.status = Status::Running;
-            record.started_at = Some(now_ms());
-        });
         if let Err(error) = self.store.save(&entry.snapshot()) {
             warn!("saving running state: {error}");
         }
@@ -546,6 +553,7 @@ impl Queue {
                     record.status = Status::Queued;
                     record.started_at = None;
                     record.progress = None;
+                    record.cancel_requested = false;
                 });
                 self.store.save(&entry.snapshot()).map_err(internal)
             }
@@ -688,6 +696,20 @@ enum Outcome {
     /// Stopped by shutdown; runs again after restart.
     Interrupted,
 }
+
+/// Pipeline threads run at nice 10, so the HTTP threads win the CPU whenever both want it and
+/// polls stay fast while every core is busy with jobs. (On Linux `setpriority` with `who = 0`
+/// applies to the calling thread only.) Best effort: failure leaves the default priority.
+fn lower_thread_priority() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: plain syscall on the current thread; no memory is shared.
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, 0, PIPELINE_NICE);
+    }
+}
+
+#[cfg(target_os = "linux")]
+const PIPELINE_NICE: libc::c_int = 10;
 
 fn internal(error: StoreError) -> ApiError {
     ApiError::Internal(error.to_string())

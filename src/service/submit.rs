@@ -7,6 +7,7 @@ use axum::body::Bytes;
 use axum::extract::{FromRequest, Multipart, Request};
 use axum::http::header;
 use base64::Engine;
+use http_body_util::BodyExt;
 use serde::Deserialize;
 use sha2::{Digest, Sha256};
 
@@ -79,7 +80,16 @@ pub async fn read(request: Request, limits: &InputLimits) -> Result<Submission, 
         .get(header::CONTENT_LENGTH)
         .and_then(|value| value.to_str().ok())
         .and_then(|value| value.parse::<u64>().ok());
-    if declared_length.is_some_and(|length| length > limits.max_body_bytes) {
+    if let Some(length) = declared_length
+        && length > limits.max_body_bytes
+    {
+        // Read (and drop) a body up to twice the limit before answering: closing a connection
+        // with unread data makes the kernel reset it, and the client may lose the 413.
+        // Anything larger is cut off at once.
+        if length <= limits.max_body_bytes.saturating_mul(2) {
+            let mut body = request.into_body();
+            while let Some(Ok(_)) = body.frame().await {}
+        }
         return Err(ApiError::BodyTooLarge {
             limit: limits.max_body_bytes,
         });
