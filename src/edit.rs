@@ -166,23 +166,23 @@ pub fn recolor_by_reference(
         .collect();
 
     let mut rasterizer = Rasterizer::new();
-    let shade = (!scene.shade.paths.is_empty()).then(|| {
-        let mut image = Image::default();
-        rasterizer.render(
-            &scene.shade.paths,
-            LayerKind::Shade.base(),
-            width,
-            height,
-            &mut image,
-        );
-        image
-    });
+    let mut render_layer = |kind: LayerKind| {
+        let paths = &scene.layer(kind).paths;
+        (!paths.is_empty()).then(|| {
+            let mut image = Image::default();
+            rasterizer.render(paths, kind.base(), width, height, &mut image);
+            image
+        })
+    };
+    let shade = render_layer(LayerKind::Shade);
+    let light = render_layer(LayerKind::Light);
 
     struct Candidate {
         index: usize,
         area: usize,
         reference_mean: [f32; 3],
         shade_mean: Option<[f32; 3]>,
+        light_mean: [f32; 3],
     }
     let mut candidates = Vec::new();
     let mut silhouette = Image::default();
@@ -215,11 +215,15 @@ pub fn recolor_by_reference(
             continue;
         }
         let shade_mean = shade.as_ref().map(|s| masked_mean(s, &mask, area));
+        let light_mean = light
+            .as_ref()
+            .map_or([0.0; 3], |l| masked_mean(l, &mask, area));
         candidates.push(Candidate {
             index,
             area,
             reference_mean,
             shade_mean,
+            light_mean,
         });
     }
     // Largest first; ties keep paint order so the result is deterministic.
@@ -231,7 +235,8 @@ pub fn recolor_by_reference(
         .take(params.k)
         .map(|c| {
             let color = std::array::from_fn(|i| match c.shade_mean {
-                Some(s) => (c.reference_mean[i] / (s[i] + params.epsilon)).clamp(0.0, 1.0),
+                Some(s) => ((c.reference_mean[i] - c.light_mean[i]) / (s[i] + params.epsilon))
+                    .clamp(0.0, 1.0),
                 None => c.reference_mean[i],
             });
             let id = PathId {
