@@ -136,8 +136,10 @@ pub fn recolor_paths(scene: &Scene, changes: &[ColorChange]) -> Result<Edit, Edi
 /// Recolours up to `k` albedo paths so the scene follows `reference`, an edited copy of
 /// `original` (paper Appendix D). Both images are at the scene's working size.
 ///
-/// Where the scene has a shade layer, the new albedo colour is the reference colour divided by
-/// the mean shade under the path, so the lighting stays; otherwise it is the reference colour.
+/// Where the scene has a shade layer, the new albedo colour is the reference colour, less the
+/// mean light under the path, divided by the mean shade under it (the paper divides only; with
+/// `I = A·S + L` the light must come off first), so the lighting stays; otherwise it is the
+/// reference colour.
 pub fn recolor_by_reference(
     scene: &Scene,
     original: &Image,
