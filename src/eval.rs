@@ -8,6 +8,7 @@ use std::time::Instant;
 use crate::optim::loss::mse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
+use crate::perceptual::{gaussian_kernel, ssim_means};
 use crate::pipeline::stage::{Canvas, Stage, StageContext};
 use crate::pipeline::{Error, Params};
 use crate::render::Image;
@@ -45,55 +46,18 @@ pub fn ssim(a: &Image, b: &Image) -> f32 {
     const C2: f64 = 0.03 * 0.03;
     let (w, h) = (a.width, a.height);
     let radius = 5usize.min((w.min(h).max(1) - 1) / 2);
-    let size = 2 * radius + 1;
-    let kernel: Vec<f64> = (0..size)
-        .map(|i| (-((i as f64 - radius as f64).powi(2)) / (2.0 * 1.5 * 1.5)).exp())
-        .collect();
-    let norm: f64 = kernel.iter().sum();
-    let kernel: Vec<f64> = kernel.iter().map(|k| k / norm).collect();
-    let (ow, oh) = (w + 1 - size, h + 1 - size);
-    let mut total = 0.0f64;
-    for c in 0..3 {
-        let channel = |img: &Image| -> Vec<f64> {
-            img.data
-                .iter()
-                .skip(c)
-                .step_by(3)
-                .map(|&v| f64::from(v))
-                .collect()
-        };
-        let (x, y) = (channel(a), channel(b));
-        let xx: Vec<f64> = x.iter().map(|v| v * v).collect();
-        let yy: Vec<f64> = y.iter().map(|v| v * v).collect();
-        let xy: Vec<f64> = x.iter().zip(&y).map(|(p, q)| p * q).collect();
-        let blur = |src: &[f64]| -> Vec<f64> {
-            let mut rows = vec![0.0; ow * h];
-            for r in 0..h {
-                for i in 0..ow {
-                    rows[r * ow + i] = (0..size).map(|k| kernel[k] * src[r * w + i + k]).sum();
-                }
-            }
-            let mut out = vec![0.0; ow * oh];
-            for r in 0..oh {
-                for i in 0..ow {
-                    out[r * ow + i] = (0..size).map(|k| kernel[k] * rows[(r + k) * ow + i]).sum();
-                }
-            }
-            out
-        };
-        let (mx, my, sxx, syy, sxy) = (blur(&x), blur(&y), blur(&xx), blur(&yy), blur(&xy));
-        let mut sum = 0.0;
-        for i in 0..mx.len() {
-            let (vx, vy, cov) = (
-                sxx[i] - mx[i] * mx[i],
-                syy[i] - my[i] * my[i],
-                sxy[i] - mx[i] * my[i],
-            );
-            sum += ((2.0 * mx[i] * my[i] + C1) * (2.0 * cov + C2))
-                / ((mx[i] * mx[i] + my[i] * my[i] + C1) * (vx + vy + C2));
-        }
-        total += sum / mx.len().max(1) as f64;
-    }
+    let kernel = gaussian_kernel(radius, 1.5);
+    let channel = |img: &Image, c: usize| -> Vec<f64> {
+        img.data
+            .iter()
+            .skip(c)
+            .step_by(3)
+            .map(|&v| f64::from(v))
+            .collect()
+    };
+    let total: f64 = (0..3)
+        .map(|c| ssim_means(&channel(a, c), &channel(b, c), w, h, &kernel, C1, C2).ssim)
+        .sum();
     (total / 3.0) as f32
 }
 

@@ -10,6 +10,7 @@ pub mod eval;
 pub mod geom;
 pub mod imageio;
 pub mod optim;
+pub mod perceptual;
 pub mod pipeline;
 pub mod render;
 pub mod scene;

@@ -1,0 +1,328 @@
+//! Weight-free perceptual measures beside MSE/PSNR/SSIM: GMSD (Xue, Zhang, Mou & Bovik 2014) and
+//! MS-SSIM (Wang, Simoncelli & Bovik 2003). Both need no learned weights, unlike LPIPS.
+//!
+//! Both compare grey levels on the 0-255 scale, as their authors' reference code does when it is
+//! given `rgb2gray` of a colour image; [`Grey::luma`] uses Octave's `rgb2gray` weights. The
+//! numbers match the authors' MATLAB code (`GMSD.m`, `msssim.m` + `ssim_index_new.m`) run in
+//! GNU Octave to 1e-6 (`tests/perceptual_reference.rs`).
+
+use crate::render::Image;
+
+/// A grey image, values on the 0-255 scale, row-major.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Grey {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f64>,
+}
+
+/// Octave's `rgb2gray` weights (ITU-R BT.601 luma), as the reference runs used.
+const LUMA: [f64; 3] = [0.298936, 0.587043, 0.114021];
+
+impl Grey {
+    /// BT.601 luma of an RGB image in [0, 1], scaled to 0-255.
+    pub fn luma(image: &Image) -> Self {
+        let data = image
+            .data
+            .chunks_exact(3)
+            .map(|px| 255.0 * (0..3).map(|c| LUMA[c] * f64::from(px[c])).sum::<f64>())
+            .collect();
+        Self {
+            width: image.width,
+            height: image.height,
+            data,
+        }
+    }
+
+    /// The value at (x, y), or 0 outside the image (MATLAB `conv2`'s zero padding).
+    fn zero_padded(&self, x: isize, y: isize) -> f64 {
+        if x < 0 || y < 0 || x as usize >= self.width || y as usize >= self.height {
+            0.0
+        } else {
+            self.data[y as usize * self.width + x as usize]
+        }
+    }
+
+    /// The value at (x, y) with coordinates past the far edges clamped (MATLAB `imfilter`'s
+    /// 'symmetric' padding, for the one-pixel overhang a 2×2 filter needs).
+    fn edge_clamped(&self, x: usize, y: usize) -> f64 {
+        self.data[y.min(self.height - 1) * self.width + x.min(self.width - 1)]
+    }
+
+    /// Means of 2×2 blocks at even coordinates (ceil(w/2) × ceil(h/2) values); `value(x, y)`
+    /// says what lies past the far edges.
+    fn halve(&self, value: impl Fn(&Self, usize, usize) -> f64) -> Self {
+        let (width, height) = (self.width.div_ceil(2), self.height.div_ceil(2));
+        let mut data = Vec::with_capacity(width * height);
+        for y in (0..self.height).step_by(2) {
+            for x in (0..self.width).step_by(2) {
+                let sum = value(self, x, y)
+                    + value(self, x + 1, y)
+                    + value(self, x, y + 1)
+                    + value(self, x + 1, y + 1);
+                data.push(sum / 4.0);
+            }
+        }
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+}
+
+/// GMSD's stability constant for 0-255 images (the authors' T).
+const GMSD_T: f64 = 170.0;
+
+/// Gradient magnitude similarity deviation of `distorted` against `reference`: 0 for equal
+/// images, larger is worse (about 0.05-0.25 for good-to-poor vectorisations). As the authors'
+/// `GMSD.m`: each luma image is averaged over 2×2 blocks and subsampled by 2, Prewitt gradients
+/// (zero padding) give magnitudes m₁, m₂, the similarity map is (2·m₁·m₂ + T) / (m₁² + m₂² + T)
+/// and the score its standard deviation (normalised by N − 1).
+///
+/// # Panics
+/// If the two images differ in size.
+pub fn gmsd(reference: &Image, distorted: &Image) -> f32 {
+    assert_same_size(reference, distorted);
+    let m1 = gradient_magnitude(&Grey::luma(reference));
+    let m2 = gradient_magnitude(&Grey::luma(distorted));
+    let similarity: Vec<f64> = m1
+        .data
+        .iter()
+        .zip(&m2.data)
+        .map(|(&a, &b)| (2.0 * a * b + GMSD_T) / (a * a + b * b + GMSD_T))
+        .collect();
+    let n = similarity.len() as f64;
+    if n < 2.0 {
+        return 0.0;
+    }
+    let mean = similarity.iter().sum::<f64>() / n;
+    let variance = similarity.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    variance.sqrt() as f32
+}
+
+/// GMSD's gradient magnitude of a luma image, at half resolution (2×2 block means, subsampled
+/// by 2; Prewitt operator with zero padding), as `GMSD.m` computes it.
+pub fn gradient_magnitude(grey: &Grey) -> Grey {
+    let half = grey.halve(|g, x, y| g.zero_padded(x as isize, y as isize));
+    let mut data = Vec::with_capacity(half.data.len());
+    for y in 0..half.height as isize {
+        for x in 0..half.width as isize {
+            let (mut gx, mut gy) = (0.0, 0.0);
+            for d in -1..=1 {
+                gx += half.zero_padded(x - 1, y + d) - half.zero_padded(x + 1, y + d);
+                gy += half.zero_padded(x + d, y - 1) - half.zero_padded(x + d, y + 1);
+            }
+            data.push((gx * gx + gy * gy).sqrt() / 3.0);
+        }
+    }
+    Grey { data, ..half }
+}
+
+/// MS-SSIM's per-scale exponents (Wang et al. 2003), finest scale first.
+pub const MS_SSIM_WEIGHTS: [f64; 5] = [0.0448, 0.2856, 0.3001, 0.2363, 0.1333];
+/// SSIM's window: 11 × 11 Gaussian, σ = 1.5.
+const SSIM_RADIUS: usize = 5;
+const SSIM_SIGMA: f64 = 1.5;
+
+/// Multi-scale SSIM of `distorted` against `reference` on luma: 1 for equal images, lower is
+/// worse. As the authors' `msssim.m` with its defaults: 5 scales, 11 × 11 Gaussian window
+/// (σ 1.5) over the valid region, K = (0.01, 0.03), L = 255, 2×2 mean and subsampling between
+/// scales, result Π cs_j^w_j (j < 5) · ssim_5^w_5. Departures, only where the reference gives no
+/// number: an image whose short side is under 176 px gets as many scales as keep the window
+/// inside (short side / 2^(scales−1) ≥ 11), with those scales' weights rescaled to sum to 1;
+/// negative contrast-structure means count as 0 (a real power of a negative number does not
+/// exist). `None` when the short side is under 11 px.
+///
+/// # Panics
+/// If the two images differ in size.
+pub fn ms_ssim(reference: &Image, distorted: &Image) -> Option<f32> {
+    assert_same_size(reference, distorted);
+    let window = 2 * SSIM_RADIUS + 1;
+    let short = reference.width.min(reference.height);
+    let scales = (1..=MS_SSIM_WEIGHTS.len())
+        .rev()
+        .find(|&s| short as f64 / f64::from(1u32 << (s - 1)) >= window as f64)?;
+    let weights = &MS_SSIM_WEIGHTS[..scales];
+    // The published weights sum to 1.0001; only a shortened set is rescaled.
+    let total: f64 = if scales == MS_SSIM_WEIGHTS.len() {
+        1.0
+    } else {
+        weights.iter().sum()
+    };
+    let kernel = gaussian_kernel(SSIM_RADIUS, SSIM_SIGMA);
+    let (c1, c2) = ((0.01f64 * 255.0).powi(2), (0.03f64 * 255.0).powi(2));
+    let (mut x, mut y) = (Grey::luma(reference), Grey::luma(distorted));
+    let mut score = 1.0f64;
+    for (scale, &weight) in weights.iter().enumerate() {
+        let means = ssim_means(&x.data, &y.data, x.width, x.height, &kernel, c1, c2);
+        let exponent = weight / total;
+        if scale + 1 == scales {
+            score *= means.ssim.max(0.0).powf(exponent);
+        } else {
+            score *= means.contrast_structure.max(0.0).powf(exponent);
+            x = x.halve(|g, x, y| g.edge_clamped(x, y));
+            y = y.halve(|g, x, y| g.edge_clamped(x, y));
+        }
+    }
+    Some(score as f32)
+}
+
+/// A normalised 1-D Gaussian of `2·radius + 1` taps (its outer product is MATLAB's
+/// `fspecial('gaussian', 2·radius + 1, sigma)`).
+pub fn gaussian_kernel(radius: usize, sigma: f64) -> Vec<f64> {
+    let taps: Vec<f64> = (0..=2 * radius)
+        .map(|i| (-((i as f64 - radius as f64).powi(2)) / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let sum: f64 = taps.iter().sum();
+    taps.iter().map(|t| t / sum).collect()
+}
+
+/// Means over the valid region of SSIM's map and of its contrast-structure factor.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SsimMeans {
+    pub ssim: f64,
+    pub contrast_structure: f64,
+}
+
+/// SSIM (Wang et al. 2004) of two `w × h` single-channel images with the separable window
+/// `kernel`, over the region where the window fits entirely ("valid"), with stabilisers `c1`,
+/// `c2` for the images' value range.
+pub fn ssim_means(
+    x: &[f64],
+    y: &[f64],
+    w: usize,
+    h: usize,
+    kernel: &[f64],
+    c1: f64,
+    c2: f64,
+) -> SsimMeans {
+    let size = kernel.len();
+    let (ow, oh) = (w + 1 - size, h + 1 - size);
+    let blur = |src: &[f64]| -> Vec<f64> {
+        let mut rows = vec![0.0; ow * h];
+        for r in 0..h {
+            for i in 0..ow {
+                rows[r * ow + i] = (0..size).map(|k| kernel[k] * src[r * w + i + k]).sum();
+            }
+        }
+        let mut out = vec![0.0; ow * oh];
+        for r in 0..oh {
+            for i in 0..ow {
+                out[r * ow + i] = (0..size).map(|k| kernel[k] * rows[(r + k) * ow + i]).sum();
+            }
+        }
+        out
+    };
+    let product =
+        |a: &[f64], b: &[f64]| -> Vec<f64> { a.iter().zip(b).map(|(p, q)| p * q).collect() };
+    let (mx, my) = (blur(x), blur(y));
+    let (sxx, syy, sxy) = (
+        blur(&product(x, x)),
+        blur(&product(y, y)),
+        blur(&product(x, y)),
+    );
+    let (mut ssim, mut cs) = (0.0, 0.0);
+    for i in 0..mx.len() {
+        let (vx, vy, cov) = (
+            sxx[i] - mx[i] * mx[i],
+            syy[i] - my[i] * my[i],
+            sxy[i] - mx[i] * my[i],
+        );
+        let contrast_structure = (2.0 * cov + c2) / (vx + vy + c2);
+        cs += contrast_structure;
+        ssim +=
+            contrast_structure * (2.0 * mx[i] * my[i] + c1) / (mx[i] * mx[i] + my[i] * my[i] + c1);
+    }
+    let n = mx.len().max(1) as f64;
+    SsimMeans {
+        ssim: ssim / n,
+        contrast_structure: cs / n,
+    }
+}
+
+fn assert_same_size(a: &Image, b: &Image) {
+    assert!(
+        (a.width, a.height) == (b.width, b.height),
+        "images differ in size: {}×{} and {}×{}",
+        a.width,
+        a.height,
+        b.width,
+        b.height
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optim::rng::Rng;
+
+    fn noisy(image: &Image, amount: f32, seed: u64) -> Image {
+        let mut rng = Rng::new(seed, 7);
+        let mut out = image.clone();
+        out.data
+            .iter_mut()
+            .for_each(|v| *v = (*v + rng.range(-amount, amount)).clamp(0.0, 1.0));
+        out
+    }
+
+    #[test]
+    fn equal_images_score_perfectly_and_noise_scores_worse() {
+        let image = crate::synth::generate(64, 64, 3).image;
+        assert_eq!(gmsd(&image, &image), 0.0);
+        assert!((ms_ssim(&image, &image).unwrap() - 1.0).abs() < 1e-9);
+        let (light, heavy) = (noisy(&image, 0.05, 1), noisy(&image, 0.3, 1));
+        let (g1, g2) = (gmsd(&image, &light), gmsd(&image, &heavy));
+        assert!(0.0 < g1 && g1 < g2, "{g1} {g2}");
+        let (s1, s2) = (
+            ms_ssim(&image, &light).unwrap(),
+            ms_ssim(&image, &heavy).unwrap(),
+        );
+        assert!(1.0 > s1 && s1 > s2 && s2 > 0.0, "{s1} {s2}");
+    }
+
+    /// A lost edge is a large gradient difference; as in the reference, the zero padding makes
+    /// the image border an edge too, so two flat images of different levels differ only there.
+    #[test]
+    fn gmsd_sees_a_lost_edge_more_than_a_flat_offset() {
+        let a = Image::filled(32, 32, [0.2; 3]);
+        let mut edge = a.clone();
+        for y in 0..32 {
+            for x in 16..32 {
+                edge.data[3 * (y * 32 + x)..3 * (y * 32 + x) + 3].copy_from_slice(&[0.9; 3]);
+            }
+        }
+        let offset = gmsd(&a, &Image::filled(32, 32, [0.25; 3]));
+        assert!(gmsd(&edge, &a) > 0.1 && gmsd(&edge, &a) > 2.0 * offset);
+    }
+
+    #[test]
+    fn small_images_use_fewer_scales_and_tiny_ones_none() {
+        // 64 px: 64/4 = 16 ≥ 11 but 64/8 = 8 < 11, so 3 scales.
+        let image = crate::synth::generate(64, 48, 1).image;
+        let score = ms_ssim(&image, &noisy(&image, 0.1, 2)).unwrap();
+        assert!(score.is_finite() && score < 1.0);
+        let tiny = Image::filled(10, 40, [0.5; 3]);
+        assert_eq!(ms_ssim(&tiny, &tiny), None);
+    }
+
+    #[test]
+    fn halving_averages_blocks_with_the_reference_padding() {
+        let g = Grey {
+            width: 3,
+            height: 1,
+            data: vec![4.0, 8.0, 12.0],
+        };
+        // Zero padding (conv2 'same'): (4+8+0+0)/4, (12+0+0+0)/4.
+        assert_eq!(
+            g.halve(|g, x, y| g.zero_padded(x as isize, y as isize))
+                .data,
+            vec![3.0, 3.0]
+        );
+        // Edge clamping (imfilter 'symmetric'): (4+8+4+8)/4, (12·4)/4.
+        assert_eq!(
+            g.halve(|g, x, y| g.edge_clamped(x, y)).data,
+            vec![6.0, 12.0]
+        );
+    }
+}
