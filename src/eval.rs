@@ -23,6 +23,10 @@ pub struct Quality {
     pub psnr: f32,
     /// Mean SSIM over the three channels (Gaussian window σ 1.5, 11 × 11, K1 0.01, K2 0.03).
     pub ssim: f32,
+    /// GMSD on luma ([`crate::perceptual::gmsd`]): 0 for equal images, lower is better.
+    pub gmsd: f32,
+    /// MS-SSIM on luma ([`crate::perceptual::ms_ssim`]); `None` under 11 px.
+    pub ms_ssim: Option<f32>,
 }
 
 pub fn quality(reconstruction: &Image, target: &Image) -> Quality {
@@ -36,6 +40,8 @@ pub fn quality(reconstruction: &Image, target: &Image) -> Quality {
         mse,
         psnr,
         ssim: ssim(reconstruction, target),
+        gmsd: crate::perceptual::gmsd(target, reconstruction),
+        ms_ssim: crate::perceptual::ms_ssim(target, reconstruction),
     }
 }
 

@@ -109,12 +109,12 @@ struct Row {
     peak_mb: Option<f64>,
 }
 
-const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,seconds,peak_mb";
+const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb";
 
 impl Row {
     fn csv(&self) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.3},{}",
+            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{}",
             self.image,
             self.class,
             self.method,
@@ -128,6 +128,11 @@ impl Row {
             self.quality.mse,
             self.quality.psnr,
             self.quality.ssim,
+            self.quality.gmsd,
+            self.quality
+                .ms_ssim
+                .map(|v| format!("{v:.4}"))
+                .unwrap_or_default(),
             self.seconds,
             self.peak_mb.map(|m| format!("{m:.1}")).unwrap_or_default(),
         )
@@ -156,7 +161,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
             for &method in &args.method {
                 let row = run_one(image_path, &bytes, method, budget, args)?;
                 eprintln!(
-                    "[{}/{total}] {} {} {} paths: MSE {:.5}, PSNR {:.2}, SSIM {:.4}, {:.1} s, {} MB",
+                    "[{}/{total}] {} {} {} paths: MSE {:.5}, PSNR {:.2}, SSIM {:.4}, GMSD {:.4}, {:.1} s, {} MB",
                     rows.len() + 1,
                     row.image,
                     row.method,
@@ -164,6 +169,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
                     row.quality.mse,
                     row.quality.psnr,
                     row.quality.ssim,
+                    row.quality.gmsd,
                     row.seconds,
                     row.peak_mb
                         .map(|m| format!("{m:.0}"))
@@ -305,6 +311,19 @@ fn working_image(image: &image::DynamicImage, w: u32, h: u32) -> Image {
     }
 }
 
+/// Mean MS-SSIM of the rows that have one (images of at least 11 px), blank if none has.
+fn mean_ms_ssim(rows: &[&Row]) -> String {
+    let values: Vec<f64> = rows
+        .iter()
+        .filter_map(|r| r.quality.ms_ssim)
+        .map(f64::from)
+        .collect();
+    if values.is_empty() {
+        return String::new();
+    }
+    format!("{:.4}", values.iter().sum::<f64>() / values.len() as f64)
+}
+
 fn collect_images(path: &Path, out: &mut Vec<PathBuf>) -> Result<(), Error> {
     if path.is_dir() {
         let entries = std::fs::read_dir(path).map_err(|source| Error::Read {
@@ -354,7 +373,7 @@ fn summary(rows: &[Row]) -> String {
             .then(a.1.cmp(b.1))
     });
     let mut out = String::from(
-        "\n| class | method | paths | n | MSE | PSNR | SSIM | segments | SVG KB | seconds (median) | peak MB (max) |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "\n| class | method | paths | n | MSE | PSNR | SSIM | GMSD | MS-SSIM | segments | SVG KB | seconds (median) | peak MB (max) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for (class, method, budget) in keys {
         let group: Vec<&Row> = rows
@@ -371,11 +390,13 @@ fn summary(rows: &[Row]) -> String {
         let peak = group.iter().filter_map(|r| r.peak_mb).fold(0.0, f64::max);
         let _ = writeln!(
             out,
-            "| {class} | {method} | {budget} | {} | {:.5} | {:.2} | {:.4} | {:.0} | {:.1} | {:.1} | {:.0} |",
+            "| {class} | {method} | {budget} | {} | {:.5} | {:.2} | {:.4} | {:.4} | {} | {:.0} | {:.1} | {:.1} | {:.0} |",
             group.len(),
             mean(&|r| f64::from(r.quality.mse)),
             mean(&|r| f64::from(r.quality.psnr)),
             mean(&|r| f64::from(r.quality.ssim)),
+            mean(&|r| f64::from(r.quality.gmsd)),
+            mean_ms_ssim(&group),
             mean(&|r| r.segments as f64),
             mean(&|r| r.svg_bytes as f64 / 1024.0),
             median,
