@@ -224,32 +224,94 @@ impl Mask {
         })
     }
 
+    /// Recomputes area and bounding box from the bits: word-wise, O(words + rows).
     fn recount(&mut self) {
         self.area = self.words.iter().map(|w| w.count_ones() as usize).sum();
         let mut bbox = [usize::MAX, usize::MAX, 0, 0];
         if self.area > 0 {
             for y in 0..self.height {
-                let row_start = y * self.width;
-                let row_has = |x: usize| self.contains_index(row_start + x);
-                if let Some(x0) = (0..self.width).find(|&x| row_has(x)) {
-                    let x1 = (0..self.width)
-                        .rev()
-                        .find(|&x| row_has(x))
-                        .expect("row has a pixel")
-                        + 1;
-                    bbox = [bbox[0].min(x0), bbox[1].min(y), bbox[2].max(x1), y + 1];
-                }
+                let (start, end) = (y * self.width, (y + 1) * self.width);
+                let Some(first) = self.first_set(start, end) else {
+                    continue;
+                };
+                let last = self.last_set(start, end).expect("row has a pixel");
+                bbox = [
+                    bbox[0].min(first - start),
+                    bbox[1].min(y),
+                    bbox[2].max(last - start + 1),
+                    y + 1,
+                ];
             }
         } else {
             bbox = [0; 4];
         }
         self.bbox = bbox;
     }
+
+    /// The first pixel index in `start..end` that is in the mask.
+    fn first_set(&self, start: usize, end: usize) -> Option<usize> {
+        let mut i = start;
+        while i < end {
+            let bits = self.words[i / 64] >> (i % 64);
+            if bits != 0 {
+                let found = i + bits.trailing_zeros() as usize;
+                return (found < end).then_some(found);
+            }
+            i = (i / 64 + 1) * 64;
+        }
+        None
+    }
+
+    /// The last pixel index in `start..end` that is in the mask.
+    fn last_set(&self, start: usize, end: usize) -> Option<usize> {
+        let mut j = end;
+        while j > start {
+            let (word, top) = ((j - 1) / 64, (j - 1) % 64);
+            let bits = self.words[word] & (u64::MAX >> (63 - top));
+            if bits != 0 {
+                let found = word * 64 + 63 - bits.leading_zeros() as usize;
+                return (found >= start).then_some(found);
+            }
+            j = word * 64;
+        }
+        None
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The word-wise bounding box equals a pixel-by-pixel one, for rows that straddle words.
+    #[test]
+    fn bounding_boxes_match_a_pixel_scan() {
+        let mut state = 12345u64;
+        for case in 0..200 {
+            let (w, h) = (1 + case % 97, 1 + (case * 7) % 41);
+            let [cx, cy] = [case % w, (case * 3) % h];
+            let mask = Mask::from_fn(w, h, |x, y| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                x.abs_diff(cx) + y.abs_diff(cy) < 1 + case % 9 && state >> 62 != 0
+            });
+            let mut naive = [usize::MAX, usize::MAX, 0, 0];
+            for y in 0..h {
+                for x in (0..w).filter(|&x| mask.contains(x, y)) {
+                    naive = [
+                        naive[0].min(x),
+                        naive[1].min(y),
+                        naive[2].max(x + 1),
+                        naive[3].max(y + 1),
+                    ];
+                }
+            }
+            if mask.is_empty() {
+                naive = [0; 4];
+            }
+            assert_eq!(mask.bbox(), naive, "case {case}");
+        }
+    }
 
     #[test]
     fn a_ring_fills_to_a_square_and_splits_from_a_far_dot() {
