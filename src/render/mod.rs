@@ -180,6 +180,11 @@ struct Scratch {
 pub struct Rasterizer {
     flattening: Flattening,
     flat: FlatScene<f32>,
+    /// What `flat` was built from: every path's points (and whether it was drawable), in order.
+    /// An optimisation step renders and then differentiates the same geometry, and the structure
+    /// loss draws one geometry in two paints, so an unchanged geometry is not flattened again.
+    flat_source: Vec<Point>,
+    flat_source_shape: Vec<(usize, bool)>,
     pool: Mutex<Vec<Scratch>>,
     bands: Vec<backward::BandGrads>,
     totals: backward::Totals,
@@ -215,7 +220,7 @@ impl Rasterizer {
         if width == 0 || height == 0 {
             return;
         }
-        self.flat.build(paths, self.flattening);
+        self.build(paths);
         let flat = &self.flat;
         let pool = &self.pool;
         out.data
@@ -285,7 +290,7 @@ impl Rasterizer {
         if width == 0 || height == 0 {
             return;
         }
-        self.flat.build(paths, self.flattening);
+        self.build(paths);
         let band_count = height.div_ceil(STRIP_ROWS);
         if self.bands.len() < band_count {
             self.bands.resize_with(band_count, Default::default);
@@ -313,6 +318,34 @@ impl Rasterizer {
         self.totals
             .reduce(flat, &self.bands[..band_count], paths.len());
         self.totals.add_into(flat, grads);
+    }
+}
+
+impl Rasterizer {
+    /// Flattens `paths` into `flat` unless `flat` already holds exactly this geometry.
+    fn build(&mut self, paths: &[Path]) {
+        let same = self.flat_source_shape.len() == paths.len()
+            && paths
+                .iter()
+                .zip(&self.flat_source_shape)
+                .all(|(p, &(n, ok))| p.points.len() == n && check_path(p).is_ok() == ok)
+            && paths
+                .iter()
+                .flat_map(|p| &p.points)
+                .eq(self.flat_source.iter());
+        if same {
+            return;
+        }
+        self.flat.build(paths, self.flattening);
+        self.flat_source.clear();
+        self.flat_source
+            .extend(paths.iter().flat_map(|p| p.points.iter().copied()));
+        self.flat_source_shape.clear();
+        self.flat_source_shape.extend(
+            paths
+                .iter()
+                .map(|p| (p.points.len(), check_path(p).is_ok())),
+        );
     }
 }
 
