@@ -7,7 +7,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use covec::decompose::mask::Mask;
-use covec::pipeline::optimise::{OptimiseReport, optimise};
+use covec::pipeline::coarse::CoarseSettings;
+use covec::pipeline::optimise::{OptimiseReport, optimise, optimise_with};
 use covec::pipeline::stage::StageContext;
 use covec::pipeline::structure::MaskGroup;
 use covec::pipeline::{Error, Iterations, Mode, Observer, Params, Progress, Quiet};
@@ -163,6 +164,17 @@ fn run(
     observer: &dyn Observer,
     cancel: &AtomicBool,
 ) -> Result<(Scene, OptimiseReport), Error> {
+    run_with(mode, params, None, observer, cancel)
+}
+
+/// [`run`] with a coarse-to-fine schedule (`None`: the default, which leaves 48 px at full size).
+fn run_with(
+    mode: Mode,
+    params: &Params,
+    coarse: Option<&CoarseSettings>,
+    observer: &dyn Observer,
+    cancel: &AtomicBool,
+) -> Result<(Scene, OptimiseReport), Error> {
     let truth = synth::generate(SIZE, SIZE, 5);
     let (mut scene, groups) = hand_init(&truth, mode == Mode::Photo);
     let stage_count = covec::pipeline::optimise::stage_names(mode).len() as u32;
@@ -172,7 +184,19 @@ fn run(
         started: Instant::now(),
         stage_count,
     };
-    let report = optimise(&mut scene, &groups, &truth.image, mode, params, &ctx, 0)?;
+    let report = match coarse {
+        Some(coarse) => optimise_with(
+            &mut scene,
+            &groups,
+            &truth.image,
+            mode,
+            params,
+            coarse,
+            &ctx,
+            0,
+        )?,
+        None => optimise(&mut scene, &groups, &truth.image, mode, params, &ctx, 0)?,
+    };
     Ok((scene, report))
 }
 
@@ -252,4 +276,47 @@ fn cancel_stops_the_run() {
 fn a_budget_below_the_initialisation_is_refused() {
     let result = run(Mode::Photo, &params(3), &Quiet, &AtomicBool::new(false));
     assert!(matches!(result, Err(Error::Params(_))));
+}
+
+/// Coarse to fine: the structure, most of the reconstruction and the first refinement round run
+/// at 24 px, the rest at 48 px. Same result shape as a run at full size (budget, layers, SVG
+/// ranges, full-size previews), a loss within reach of it, and progress that never goes back.
+#[test]
+fn coarse_to_fine_keeps_the_result_shape_and_the_progress_order() {
+    let coarse = CoarseSettings {
+        min_size: 32,
+        ..CoarseSettings::default()
+    };
+    assert!(coarse.applies(SIZE, SIZE) && !CoarseSettings::default().applies(SIZE, SIZE));
+    let recorder = Recorder::default();
+    let cancel = AtomicBool::new(false);
+    let (scene, report) =
+        run_with(Mode::Photo, &params(20), Some(&coarse), &recorder, &cancel).unwrap();
+    let (_, fine) = run(Mode::Photo, &params(20), &Quiet, &cancel).unwrap();
+    assert_eq!(scene.path_count(), 20);
+    assert_eq!((scene.width, scene.height), (SIZE as u32, SIZE as u32));
+    for kind in LayerKind::ALL {
+        for p in &scene.layer(kind).paths {
+            assert!(
+                p.points
+                    .iter()
+                    .all(|q| q.x.abs() <= 2.0 * SIZE as f32 && q.y.abs() <= 2.0 * SIZE as f32)
+            );
+        }
+    }
+    let polish = |r: &OptimiseReport| r.losses.iter().find(|l| l.stage == "polish").unwrap().after;
+    assert!(
+        polish(&report) < 1.5 * polish(&fine),
+        "{:?} vs {:?}",
+        report.losses,
+        fine.losses
+    );
+    // Within each stage, reported iterations never decrease across the coarse/fine switch.
+    let reports = recorder.reports.lock().unwrap();
+    for pair in reports.windows(2) {
+        if pair[0].stage == pair[1].stage {
+            assert!(pair[1].iteration >= pair[0].iteration, "{:?}", pair);
+            assert_eq!(pair[0].iterations, pair[1].iterations);
+        }
+    }
 }

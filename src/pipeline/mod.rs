@@ -4,6 +4,7 @@
 //! [`Observer`], check `cancel` every iteration, and hand each stage's previews to the observer
 //! as soon as the stage ends.
 
+pub mod coarse;
 pub mod init;
 pub mod optimise;
 pub mod polish;

@@ -1,11 +1,18 @@
 //! The optimisation stages after the initialisation, in order:
 //! photo: structure → reconstruct → refine (illumination) → split → polish;
 //! simple: structure → reconstruct → refine (albedo) → polish.
+//!
+//! The structure stage, the first part of the reconstruction and the first refinement rounds run
+//! on a half-size copy of the scene (see [`super::coarse`]); previews are made at full size.
 
+use super::coarse::{CoarseSettings, halve_image, halve_mask, rescaled};
 use super::refine::{Growth, RefineSettings, refine};
 use super::split::{SplitReport, split_layers};
-use super::stage::{Stage, StageContext};
-use super::structure::{MaskGroup, StructureSettings, optimise_structure};
+use super::stage::{Canvas, IterationSpan, Stage, StageContext};
+use super::structure::{
+    MaskGroup, Scratch, StructureSettings, optimise_reconstruction, optimise_structure,
+    preview_two_layers, reconstruction_loss,
+};
 use super::{Error, Mode, Params, polish};
 use crate::render::Image;
 use crate::scene::{LayerKind, Scene};
@@ -46,6 +53,30 @@ pub fn optimise(
     ctx: &StageContext,
     first_stage: u32,
 ) -> Result<OptimiseReport, Error> {
+    optimise_with(
+        scene,
+        groups,
+        target,
+        mode,
+        params,
+        &CoarseSettings::default(),
+        ctx,
+        first_stage,
+    )
+}
+
+/// [`optimise`] with the given coarse-to-fine schedule.
+#[allow(clippy::too_many_arguments)]
+pub fn optimise_with(
+    scene: &mut Scene,
+    groups: &[MaskGroup],
+    target: &Image,
+    mode: Mode,
+    params: &Params,
+    coarse: &CoarseSettings,
+    ctx: &StageContext,
+    first_stage: u32,
+) -> Result<OptimiseReport, Error> {
     let names = stage_names(mode);
     let stage = |name: &'static str| Stage {
         name,
@@ -63,28 +94,8 @@ pub fn optimise(
     }
     let it = &params.iterations;
     let structure = StructureSettings::default();
+    let refine_settings = RefineSettings::default();
     let mut report = OptimiseReport::default();
-    let [initial, after_structure, after_reconstruct] = optimise_structure(
-        scene,
-        groups,
-        target,
-        it.structure,
-        it.reconstruction,
-        &structure,
-        params.seed,
-        ctx,
-        [stage("structure"), stage("reconstruct")],
-    )?;
-    report.losses.push(StageLoss {
-        stage: "structure",
-        before: initial,
-        after: after_structure,
-    });
-    report.losses.push(StageLoss {
-        stage: "reconstruct",
-        before: after_structure,
-        after: after_reconstruct,
-    });
     let growth = match mode {
         Mode::Simple => Growth {
             layer: LayerKind::Albedo,
@@ -95,21 +106,136 @@ pub fn optimise(
             color_max: structure.illumination_cap,
         },
     };
-    let [before, after] = refine(
+    let (w, h) = (target.width, target.height);
+    let coarse_applies = coarse.applies(w, h);
+    // Coarse phase: structure, the first part of the reconstruction, the first refinement rounds.
+    let coarse_reconstruction = if coarse_applies {
+        ((it.reconstruction as f32 * coarse.reconstruction_share).round() as u32)
+            .min(it.reconstruction)
+    } else {
+        0
+    };
+    let coarse_rounds = if coarse_applies {
+        it.refine_rounds.saturating_sub(coarse.fine_rounds)
+    } else {
+        0
+    };
+    let (half_w, half_h) = (w.div_ceil(2), h.div_ceil(2));
+    let small_target = coarse_applies.then(|| halve_image(target));
+    let mut canvas = Canvas::new(w, h);
+    let mut scratch = Scratch::default();
+
+    let structure_losses = if let Some(small_target) = &small_target {
+        let mut small = rescaled(scene, 0.5, half_w as u32, half_h as u32);
+        let small_groups: Vec<MaskGroup> = groups
+            .iter()
+            .map(|g| MaskGroup {
+                masks: g.masks.iter().map(halve_mask).collect(),
+                ..g.clone()
+            })
+            .collect();
+        let losses = optimise_structure(
+            &mut small,
+            &small_groups,
+            small_target,
+            it.structure,
+            &structure,
+            params.seed,
+            ctx,
+            stage("structure"),
+        )?;
+        *scene = rescaled(&small, 2.0, w as u32, h as u32);
+        losses
+    } else {
+        optimise_structure(
+            scene,
+            groups,
+            target,
+            it.structure,
+            &structure,
+            params.seed,
+            ctx,
+            stage("structure"),
+        )?
+    };
+    let after_structure = preview_two_layers(&mut canvas, scene, target, ctx, stage("structure"));
+    report.losses.push(StageLoss {
+        stage: "structure",
+        before: structure_losses[0],
+        after: after_structure,
+    });
+
+    let reconstruction = |start: u32, count: u32| IterationSpan {
+        start,
+        count,
+        total: it.reconstruction,
+    };
+    if let Some(small_target) = &small_target {
+        let mut small = rescaled(scene, 0.5, half_w as u32, half_h as u32);
+        optimise_reconstruction(
+            &mut small,
+            small_target,
+            reconstruction(0, coarse_reconstruction),
+            &structure,
+            ctx,
+            stage("reconstruct"),
+        )?;
+        *scene = rescaled(&small, 2.0, w as u32, h as u32);
+    }
+    optimise_reconstruction(
         scene,
         target,
-        growth,
-        budget,
-        it.refine_rounds,
-        it.refine,
-        &RefineSettings::default(),
-        params.seed,
+        reconstruction(
+            coarse_reconstruction,
+            it.reconstruction - coarse_reconstruction,
+        ),
+        &structure,
         ctx,
-        stage("refine"),
+        stage("reconstruct"),
+    )?;
+    let after_reconstruct = if it.reconstruction > 0 {
+        preview_two_layers(&mut canvas, scene, target, ctx, stage("reconstruct"))
+    } else {
+        reconstruction_loss(&mut canvas, scene, target, &mut scratch, None)
+    };
+    report.losses.push(StageLoss {
+        stage: "reconstruct",
+        before: after_structure,
+        after: after_reconstruct,
+    });
+
+    let rounds = |start: u32, count: u32| IterationSpan {
+        start,
+        count,
+        total: it.refine_rounds,
+    };
+    let refine_stage = |scene: &mut Scene, target: &Image, span: IterationSpan| {
+        refine(
+            scene,
+            target,
+            growth,
+            budget,
+            span,
+            it.refine,
+            &refine_settings,
+            params.seed,
+            ctx,
+            stage("refine"),
+        )
+    };
+    if let Some(small_target) = &small_target {
+        let mut small = rescaled(scene, 0.5, half_w as u32, half_h as u32);
+        refine_stage(&mut small, small_target, rounds(0, coarse_rounds))?;
+        *scene = rescaled(&small, 2.0, w as u32, h as u32);
+    }
+    let [_, after] = refine_stage(
+        scene,
+        target,
+        rounds(coarse_rounds, it.refine_rounds - coarse_rounds),
     )?;
     report.losses.push(StageLoss {
         stage: "refine",
-        before,
+        before: after_reconstruct,
         after,
     });
     if mode != Mode::Simple {

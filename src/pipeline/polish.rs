@@ -3,6 +3,7 @@
 //! file is optimal for what is displayed rather than for the unclamped two-layer model.
 
 use super::Error;
+use super::coarse::{Plateau, PlateauSettings};
 use super::stage::{Canvas, Stage, StageContext};
 use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
@@ -50,7 +51,11 @@ pub fn polish(
         &mut d_composite,
     );
     let mut loss = initial;
+    let mut plateau = Plateau::new(PlateauSettings::default());
     for it in 0..iterations {
+        if plateau.stop_after(loss) {
+            break;
+        }
         let [d_a, d_s, d_l] = &mut d_layers;
         svg_model_backward(
             &layers[0],

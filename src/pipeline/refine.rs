@@ -6,8 +6,9 @@
 //! albedo); the simple mode refines the albedo layer itself (the illumination is empty, i.e. 1).
 
 use super::Error;
+use super::coarse::{Plateau, PlateauSettings};
 use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, high_error_regions};
-use super::stage::{Canvas, Stage, StageContext};
+use super::stage::{Canvas, IterationSpan, Stage, StageContext};
 use crate::optim::loss::mse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
@@ -32,6 +33,8 @@ pub struct RefineSettings {
     pub merge_color_l1: f32,
     /// Smallest semi-axis of a new path, in pixels. Default 1.5.
     pub min_radius: f32,
+    /// When a round's training stops early.
+    pub plateau: PlateauSettings,
 }
 
 impl Default for RefineSettings {
@@ -43,6 +46,7 @@ impl Default for RefineSettings {
             merge_overlap: 3,
             merge_color_l1: 0.1,
             min_radius: 1.5,
+            plateau: PlateauSettings::default(),
         }
     }
 }
@@ -55,15 +59,17 @@ pub struct Growth {
     pub color_max: f32,
 }
 
-/// Runs up to `rounds` rounds of `iterations` each and returns the reconstruction loss
-/// ‖I − R(A)·R(I)‖² before and after. Afterwards `scene.path_count() == budget` unless the scene already held more.
+/// Runs the span's rounds (of `rounds.total`, each of up to `iterations`, stopping early once the
+/// loss has plateaued) and returns the reconstruction loss ‖I − R(A)·R(I)‖² before and after.
+/// After the last of all rounds `scene.path_count() == budget` unless the scene already held
+/// more; only then are previews made.
 #[allow(clippy::too_many_arguments)]
 pub fn refine(
     scene: &mut Scene,
     target: &Image,
     growth: Growth,
     budget: usize,
-    rounds: u32,
+    rounds: IterationSpan,
     iterations: u32,
     settings: &RefineSettings,
     seed: u64,
@@ -81,7 +87,7 @@ pub fn refine(
     let mut factor = Image::default();
     canvas.render_layer(scene, other, &mut factor);
     let bounds = Bounds::canvas(w, h, growth.color_max);
-    let total_iterations = rounds * iterations;
+    let total_iterations = rounds.total * iterations;
     let mut frozen = Image::default();
     let mut grown = Image::default();
     let mut composite = Image::default();
@@ -89,12 +95,12 @@ pub fn refine(
     product(&grown, &factor, &mut composite);
     let initial = crate::optim::loss::mse_value(&composite, target);
 
-    for round in 0..rounds {
+    for round in rounds.start..rounds.start + rounds.count {
         let remaining = budget.saturating_sub(scene.path_count());
         if remaining == 0 {
             break;
         }
-        let last = round + 1 == rounds;
+        let last = round + 1 == rounds.total;
         let count = if last {
             remaining
         } else {
@@ -175,6 +181,9 @@ pub fn refine(
     canvas.render_layer(scene, growth.layer, &mut grown);
     product(&grown, &factor, &mut composite);
     let loss = crate::optim::loss::mse_value(&composite, target);
+    if rounds.start + rounds.count < rounds.total {
+        return Ok([initial, loss]);
+    }
     ctx.preview(stage, "composite", &composite);
     ctx.preview(
         stage,
@@ -202,6 +211,7 @@ fn train(
     mut report: impl FnMut(u32, f32) -> Result<(), Error>,
 ) -> Result<(), Error> {
     let mut adam = Adam::new(settings.adam, bounds);
+    let mut plateau = Plateau::new(settings.plateau);
     let (mut layer, mut composite, mut d_composite) =
         (Image::default(), Image::default(), Image::default());
     let (mut d_layer, mut d_factor) = (Image::default(), Image::default());
@@ -210,6 +220,9 @@ fn train(
         canvas.render_over(paths, backdrop, &mut layer);
         product(&layer, factor, &mut composite);
         let loss = mse(&composite, target, &mut d_composite);
+        if plateau.stop_after(loss) {
+            break;
+        }
         product_backward(&layer, factor, &d_composite, &mut d_layer, &mut d_factor);
         reset_grads(&mut grads, paths);
         canvas.backward_over(paths, backdrop, &d_layer, &mut grads);

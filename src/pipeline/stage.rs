@@ -26,6 +26,26 @@ pub struct Stage {
     pub index: u32,
 }
 
+/// Iterations (or rounds) `start..start + count` of a loop of `total`: a stage split into a
+/// coarse and a fine part reports progress against the whole.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct IterationSpan {
+    pub start: u32,
+    pub count: u32,
+    pub total: u32,
+}
+
+impl IterationSpan {
+    /// All `total` iterations.
+    pub fn all(total: u32) -> Self {
+        Self {
+            start: 0,
+            count: total,
+            total,
+        }
+    }
+}
+
 impl StageContext<'_> {
     /// Reports one iteration and returns `Err(Canceled)` if the run was canceled.
     pub fn iteration(

@@ -6,8 +6,9 @@
 //! [`StructureSettings::illumination_cap`].
 
 use super::Error;
+use super::coarse::{Plateau, PlateauSettings};
 use super::init::LayerGroups;
-use super::stage::{Canvas, Stage, StageContext};
+use super::stage::{Canvas, IterationSpan, Stage, StageContext};
 use crate::decompose::mask::Mask;
 use crate::optim::loss::{mse, overlap_penalty};
 use crate::optim::rng::Rng;
@@ -61,6 +62,8 @@ pub struct StructureSettings {
     pub overlap_weight: f32,
     /// Upper bound of illumination colours. Default 4: enough for highlights on albedo ≥ 0.25.
     pub illumination_cap: f32,
+    /// When the reconstruction loop stops early.
+    pub plateau: PlateauSettings,
 }
 
 impl Default for StructureSettings {
@@ -70,6 +73,7 @@ impl Default for StructureSettings {
             overlap_delta: 178.0 / 255.0,
             overlap_weight: 0.5,
             illumination_cap: crate::render::composite::ILLUMINATION_CAP,
+            plateau: PlateauSettings::default(),
         }
     }
 }
@@ -77,36 +81,29 @@ impl Default for StructureSettings {
 /// Grey translucent fill used to measure overlap within a group (LayerVec: black at alpha 0.3).
 const OVERLAP_OPACITY: f32 = 0.3;
 
-/// Runs `structure_iterations` of the structure loss, then `reconstruction_iterations` of the
-/// reconstruction loss, on the albedo and illumination (`scene.shade`) layers.
-/// Returns the reconstruction loss ‖I − R(A)·R(I)‖² before, after the structure iterations
-/// and at the end.
+/// Runs `iterations` of the structure loss on the albedo and illumination (`scene.shade`)
+/// layers, one Adam per layer (geometry and opacity only). Returns the reconstruction loss
+/// ‖I − R(A)·R(I)‖² before and after.
 #[allow(clippy::too_many_arguments)]
 pub fn optimise_structure(
     scene: &mut Scene,
     groups: &[MaskGroup],
     target: &Image,
-    structure_iterations: u32,
-    reconstruction_iterations: u32,
+    iterations: u32,
     settings: &StructureSettings,
     seed: u64,
     ctx: &StageContext,
-    stages: [Stage; 2],
-) -> Result<[f32; 3], Error> {
+    stage: Stage,
+) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let mut scratch = Scratch::default();
     let initial = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
-    let mut adam_albedo = Adam::new(settings.adam, Bounds::canvas(w, h, 1.0));
-    let mut adam_illum = Adam::new(
-        settings.adam,
-        Bounds::canvas(w, h, settings.illumination_cap),
-    );
-
+    let [mut adam_albedo, mut adam_illum] = layer_adams(settings, w, h);
     let prepared = prepare_groups(scene, groups, w, h, seed)?;
     let mut grads_a = Vec::new();
     let mut grads_i = Vec::new();
-    for it in 0..structure_iterations {
+    for it in 0..iterations {
         let mut loss = 0.0;
         for (kind, adam, grads) in [
             (LayerKind::Albedo, &mut adam_albedo, &mut grads_a),
@@ -114,7 +111,12 @@ pub fn optimise_structure(
         ] {
             let paths = &mut scene.layer_mut(kind).paths;
             reset_grads(grads, paths);
-            for group in prepared.iter().filter(|g| g.layer == kind) {
+            // A group holding only the albedo base trains nothing (its geometry and opacity
+            // are held, and this loss leaves colours alone): skip its renders.
+            let trainable = |g: &&PreparedGroup| {
+                g.layer == kind && !(kind == LayerKind::Albedo && g.paths == [0])
+            };
+            for group in prepared.iter().filter(trainable) {
                 loss += structure_loss(&mut canvas, paths, group, settings, grads, &mut scratch);
             }
             // The structure loss shapes geometry only; colours are fit by the reconstruction.
@@ -126,30 +128,61 @@ pub fn optimise_structure(
             }
             adam.step(paths, grads);
         }
-        ctx.iteration(stages[0], it + 1, structure_iterations, Some(loss))?;
+        ctx.iteration(stage, it + 1, iterations, Some(loss))?;
     }
-    let after_structure = preview_two_layers(&mut canvas, scene, target, ctx, stages[0]);
+    let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
+    Ok([initial, after])
+}
 
-    let mut loss = after_structure;
-    for it in 0..reconstruction_iterations {
+/// Runs the span's iterations of the shared reconstruction loss ‖I − R(A)·R(I)‖² on both
+/// layers, one Adam per layer, stopping early once the loss has plateaued. Returns the loss
+/// before and after.
+pub fn optimise_reconstruction(
+    scene: &mut Scene,
+    target: &Image,
+    span: IterationSpan,
+    settings: &StructureSettings,
+    ctx: &StageContext,
+    stage: Stage,
+) -> Result<[f32; 2], Error> {
+    let (w, h) = (target.width, target.height);
+    let mut canvas = Canvas::new(w, h);
+    let mut scratch = Scratch::default();
+    let initial = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
+    let [mut adam_albedo, mut adam_illum] = layer_adams(settings, w, h);
+    let mut plateau = Plateau::new(settings.plateau);
+    let (mut grads_a, mut grads_i) = (Vec::new(), Vec::new());
+    for it in 0..span.count {
         reset_grads(&mut grads_a, &scene.albedo.paths);
         reset_grads(&mut grads_i, &scene.shade.paths);
-        loss = reconstruction_loss(
+        let loss = reconstruction_loss(
             &mut canvas,
             scene,
             target,
             &mut scratch,
             Some((&mut grads_a, &mut grads_i)),
         );
+        if plateau.stop_after(loss) {
+            break;
+        }
         hold_albedo_base(&mut grads_a);
         adam_albedo.step(&mut scene.albedo.paths, &grads_a);
         adam_illum.step(&mut scene.shade.paths, &grads_i);
-        ctx.iteration(stages[1], it + 1, reconstruction_iterations, Some(loss))?;
+        ctx.iteration(stage, span.start + it + 1, span.total, Some(loss))?;
     }
-    if reconstruction_iterations > 0 {
-        loss = preview_two_layers(&mut canvas, scene, target, ctx, stages[1]);
-    }
-    Ok([initial, after_structure, loss])
+    let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
+    Ok([initial, after])
+}
+
+/// The albedo and illumination Adams (colours within [0, 1] and [0, illumination cap]).
+fn layer_adams(settings: &StructureSettings, w: usize, h: usize) -> [Adam; 2] {
+    [
+        Adam::new(settings.adam, Bounds::canvas(w, h, 1.0)),
+        Adam::new(
+            settings.adam,
+            Bounds::canvas(w, h, settings.illumination_cap),
+        ),
+    ]
 }
 
 /// Reusable buffers.
@@ -191,7 +224,7 @@ pub(crate) fn reconstruction_loss(
 }
 
 /// Previews the two-layer composite and both layers; returns the reconstruction loss.
-fn preview_two_layers(
+pub(crate) fn preview_two_layers(
     canvas: &mut Canvas,
     scene: &Scene,
     target: &Image,

@@ -1,0 +1,221 @@
+//! Coarse-to-fine optimisation and early stopping (departures from the paper, for speed).
+//!
+//! **Coarse to fine.** The early iterations only need the rough geometry: the structure stage,
+//! the first part of the reconstruction and the first refinement rounds run on a copy of the
+//! scene at half the working size (points × ½, target and masks averaged over 2×2 blocks), whose
+//! renders cost about a quarter; the geometry is then scaled back and the later iterations run at
+//! full size. Each resolution gets its own Adam (moments do not carry over a change of scale).
+//!
+//! **Early stopping.** A loop stops once its loss has plateaued ([`Plateau`]): when the best
+//! loss of the last `window` iterations is less than `min_gain` (relative) below the best loss
+//! before them.
+
+use crate::decompose::mask::Mask;
+use crate::render::Image;
+use crate::scene::{LayerKind, Scene};
+
+/// When and how much to run coarse.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CoarseSettings {
+    /// Images whose long side is under this run at full size throughout. Default 128: below it
+    /// a half-size copy no longer holds the features paths start from.
+    pub min_size: usize,
+    /// Share of the reconstruction iterations run coarse. Default 0.8.
+    pub reconstruction_share: f32,
+    /// Refinement rounds run at full size, at the end; the earlier ones run coarse. Default 1.
+    pub fine_rounds: u32,
+}
+
+impl Default for CoarseSettings {
+    fn default() -> Self {
+        Self {
+            min_size: 128,
+            reconstruction_share: 0.8,
+            fine_rounds: 1,
+        }
+    }
+}
+
+impl CoarseSettings {
+    /// Whether a `width × height` working image has a coarse phase.
+    pub fn applies(&self, width: usize, height: usize) -> bool {
+        width.max(height) >= self.min_size
+    }
+}
+
+/// The image at half size: each pixel the mean of a 2×2 block (edge pixels repeated where the
+/// block overhangs an odd size).
+pub fn halve_image(image: &Image) -> Image {
+    let (w, h) = (image.width, image.height);
+    let (hw, hh) = (w.div_ceil(2), h.div_ceil(2));
+    let mut out = Image::filled(hw, hh, [0.0; 3]);
+    for y in 0..hh {
+        for x in 0..hw {
+            let mut sum = [0.0f32; 3];
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let p = image.pixel((2 * x + dx).min(w - 1), (2 * y + dy).min(h - 1));
+                for c in 0..3 {
+                    sum[c] += p[c] / 4.0;
+                }
+            }
+            out.data[3 * (y * hw + x)..3 * (y * hw + x) + 3].copy_from_slice(&sum);
+        }
+    }
+    out
+}
+
+/// The mask at half size: a pixel is in when at least half of its 2×2 block is.
+pub fn halve_mask(mask: &Mask) -> Mask {
+    let (w, h) = (mask.width(), mask.height());
+    Mask::from_fn(w.div_ceil(2), h.div_ceil(2), |x, y| {
+        let inside = [(0, 0), (1, 0), (0, 1), (1, 1)]
+            .iter()
+            .filter(|&&(dx, dy)| {
+                let (px, py) = (2 * x + dx, 2 * y + dy);
+                px < w && py < h && mask.contains(px, py)
+            })
+            .count();
+        inside >= 2
+    })
+}
+
+/// A copy of `scene` on a `width × height` canvas with every point multiplied by `factor`
+/// (½ to go coarse, 2 to come back); colours and opacities are kept.
+pub fn rescaled(scene: &Scene, factor: f32, width: u32, height: u32) -> Scene {
+    let mut out = scene.clone();
+    out.width = width;
+    out.height = height;
+    for kind in LayerKind::ALL {
+        for path in &mut out.layer_mut(kind).paths {
+            for p in &mut path.points {
+                p.x *= factor;
+                p.y *= factor;
+            }
+        }
+    }
+    out
+}
+
+/// The plateau test of early stopping.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlateauSettings {
+    /// Iterations compared. Default 10.
+    pub window: u32,
+    /// Smallest relative gain over the window that keeps a loop going. Default 0.002 (0.2%).
+    pub min_gain: f32,
+    /// Iterations always run. Default 20.
+    pub min_iterations: u32,
+}
+
+impl Default for PlateauSettings {
+    fn default() -> Self {
+        Self {
+            window: 10,
+            min_gain: 0.002,
+            min_iterations: 20,
+        }
+    }
+}
+
+/// Tracks one loop's loss and says when it has plateaued.
+#[derive(Clone, Debug)]
+pub struct Plateau {
+    settings: PlateauSettings,
+    /// Best loss so far after each iteration (non-increasing).
+    best: Vec<f32>,
+}
+
+impl Plateau {
+    pub fn new(settings: PlateauSettings) -> Self {
+        Self {
+            settings,
+            best: Vec::new(),
+        }
+    }
+
+    /// Records the loss of one more iteration; true when the loop should stop.
+    pub fn stop_after(&mut self, loss: f32) -> bool {
+        let best = self.best.last().map_or(loss, |&b| b.min(loss));
+        self.best.push(best);
+        let t = self.best.len();
+        let window = self.settings.window as usize;
+        if t < (self.settings.min_iterations as usize).max(window + 1) {
+            return false;
+        }
+        let before = self.best[t - 1 - window];
+        before - best < self.settings.min_gain * before
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_steady_descent_runs_on_and_a_flat_tail_stops() {
+        let settings = PlateauSettings::default();
+        let mut plateau = Plateau::new(settings);
+        // 5% less per iteration: never plateaus.
+        let mut loss = 1.0f32;
+        for _ in 0..100 {
+            assert!(!plateau.stop_after(loss));
+            loss *= 0.95;
+        }
+        let mut plateau = Plateau::new(settings);
+        let mut stopped_at = None;
+        for t in 0..100 {
+            // Descends for 30 iterations, then noise around a floor.
+            let loss = if t < 30 {
+                1.0 - 0.02 * t as f32
+            } else {
+                0.4 + 1e-4 * (t % 3) as f32
+            };
+            if plateau.stop_after(loss) {
+                stopped_at = Some(t);
+                break;
+            }
+        }
+        // The floor is reached at t = 30; at t = 40 the last 10 iterations gained nothing.
+        assert_eq!(stopped_at, Some(40));
+    }
+
+    #[test]
+    fn never_stops_before_the_minimum() {
+        let mut plateau = Plateau::new(PlateauSettings::default());
+        for _ in 0..19 {
+            assert!(!plateau.stop_after(1.0));
+        }
+        assert!(plateau.stop_after(1.0));
+    }
+
+    #[test]
+    fn halving_averages_blocks_and_keeps_the_mask_majority() {
+        let mut image = Image::filled(3, 2, [0.0; 3]);
+        image.data[0] = 1.0; // red of (0, 0)
+        image.data[3 * 2] = 0.8; // red of (2, 0)
+        let half = halve_image(&image);
+        assert_eq!((half.width, half.height), (2, 1));
+        assert_eq!(half.pixel(0, 0)[0], 0.25);
+        // (2, 0) and (2, 1) repeated over the overhang: (0.8 + 0.8 + 0 + 0) / 4.
+        assert!((half.pixel(1, 0)[0] - 0.4).abs() < 1e-6);
+
+        let mask = Mask::from_fn(4, 4, |x, y| x < 2 || (x == 2 && y == 0));
+        let half = halve_mask(&mask);
+        assert!(half.contains(0, 0) && half.contains(0, 1));
+        assert!(!half.contains(1, 0), "one of four is not a majority");
+    }
+
+    #[test]
+    fn rescaling_there_and_back_keeps_the_scene() {
+        let mut scene = Scene::new(64, 64, 64, 64);
+        scene.shade.paths.push(crate::scene::Path::rect(
+            3.0, 5.0, 17.0, 33.0, [0.5; 3], 0.7,
+        ));
+        let coarse = rescaled(&scene, 0.5, 32, 32);
+        assert_eq!(
+            coarse.shade.paths[0].points[0],
+            crate::scene::Point::new(1.5, 2.5)
+        );
+        assert_eq!(rescaled(&coarse, 2.0, 64, 64), scene);
+    }
+}
