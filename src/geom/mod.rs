@@ -2,8 +2,6 @@
 //!
 //! - [`bezier`]: cubic evaluation, Bernstein weights and uniform-parameter flattening.
 //! - [`contour`]: contour tracing and polygon simplification on canvas pixels.
-//! - [`fit`]: few smooth cubics for a closed outline (corners + Schneider's least-squares fit).
 
 pub mod bezier;
 pub mod contour;
-pub mod fit;
