@@ -8,7 +8,10 @@
 //!
 //! **Early stopping.** A loop stops once its loss has plateaued ([`Plateau`]): when the best
 //! loss of the last `window` iterations is less than `min_gain` (relative) below the best loss
-//! before them.
+//! before them. The reconstruction, the coarse refinement rounds and the polish stop early; the
+//! last (full-size) refinement round runs all its iterations: it places the paths the output
+//! ends with, and stopping it early changed which paths cover a region enough to break the
+//! edit-faithfulness check (`tests/edit_synthetic.rs`, photo beats albedo-only at K = 2).
 
 use crate::decompose::mask::Mask;
 use crate::render::Image;
@@ -117,6 +120,16 @@ impl Default for PlateauSettings {
     }
 }
 
+impl PlateauSettings {
+    /// Never stops early.
+    pub fn never() -> Self {
+        Self {
+            min_gain: 0.0,
+            ..Self::default()
+        }
+    }
+}
+
 /// Tracks one loop's loss and says when it has plateaued.
 #[derive(Clone, Debug)]
 pub struct Plateau {
@@ -177,6 +190,12 @@ mod tests {
         }
         // The floor is reached at t = 30; at t = 40 the last 10 iterations gained nothing.
         assert_eq!(stopped_at, Some(40));
+    }
+
+    #[test]
+    fn never_means_never() {
+        let mut plateau = Plateau::new(PlateauSettings::never());
+        assert!((0..200).all(|_| !plateau.stop_after(1.0)));
     }
 
     #[test]

@@ -5,7 +5,7 @@
 //! The structure stage, the first part of the reconstruction and the first refinement rounds run
 //! on a half-size copy of the scene (see [`super::coarse`]); previews are made at full size.
 
-use super::coarse::{CoarseSettings, halve_image, halve_mask, rescaled};
+use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask, rescaled};
 use super::refine::{Growth, RefineSettings, refine};
 use super::split::{SplitReport, split_layers};
 use super::stage::{Canvas, IterationSpan, Stage, StageContext};
@@ -209,7 +209,13 @@ pub fn optimise_with(
         count,
         total: it.refine_rounds,
     };
+    // Early stopping in the coarse rounds only (see `super::coarse`).
+    let fine_refine = RefineSettings {
+        plateau: PlateauSettings::never(),
+        ..refine_settings.clone()
+    };
     let refine_stage = |scene: &mut Scene, target: &Image, span: IterationSpan| {
+        let coarse_span = span.start + span.count < span.total;
         refine(
             scene,
             target,
@@ -217,7 +223,11 @@ pub fn optimise_with(
             budget,
             span,
             it.refine,
-            &refine_settings,
+            if coarse_span {
+                &refine_settings
+            } else {
+                &fine_refine
+            },
             params.seed,
             ctx,
             stage("refine"),
