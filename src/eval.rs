@@ -3,14 +3,15 @@
 //! same engine, budget and total iteration count), so the value of COVec's initialisation and
 //! decomposition shows side by side.
 
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use crate::optim::loss::mse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
 use crate::perceptual::{gaussian_kernel, ssim_means};
-use crate::pipeline::stage::{Canvas, Stage, StageContext};
-use crate::pipeline::{Error, Params};
+use crate::pipeline::stage::{Canvas, RunContext, StageKind, StageSpec};
+use crate::pipeline::{Error, Observer, Params};
 use crate::render::Image;
 use crate::scene::{Path, Point, Scene};
 
@@ -81,20 +82,24 @@ pub fn reset_peak_memory() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
 
-/// Total iterations covec's photo mode would run with `params`, which the baseline matches.
-pub fn covec_iteration_count(params: &Params) -> u32 {
-    let it = &params.iterations;
-    it.structure + it.reconstruction + it.refine_rounds * it.refine + it.polish
-}
+/// The random baseline's one stage.
+const RANDOM_STAGES: &[StageSpec] = &[StageSpec {
+    kind: StageKind::Reconstruct,
+    name: "random",
+    layers: &[crate::scene::LayerKind::Albedo],
+    iterations: |it| it.total(),
+}];
 
 /// The `random` baseline: an opaque full-canvas path of the mean colour plus `params.paths − 1`
 /// DiffVG-style random paths (1-3 cubic segments with points within 5% of the canvas around a
 /// random centre, random colour and opacity), all trained with the reconstruction loss for
-/// [`covec_iteration_count`] iterations. Albedo layer only; same engine and Adam as covec.
+/// as many iterations as covec's stages together ([`crate::Iterations::total`]). Albedo layer
+/// only; same engine and Adam as covec. Progress is reported as one stage, `random`.
 pub fn random_baseline(
     target: &Image,
     params: &Params,
-    ctx: &StageContext,
+    observer: &dyn Observer,
+    cancel: &AtomicBool,
 ) -> Result<Scene, Error> {
     let (w, h) = (target.width, target.height);
     if params.paths < 1 {
@@ -131,11 +136,9 @@ pub fn random_baseline(
             opacity: rng.range(0.5, 1.0),
         });
     }
-    let iterations = covec_iteration_count(params);
-    let stage = Stage {
-        name: "random",
-        index: 0,
-    };
+    let iterations = u32::try_from(params.iterations.total()).unwrap_or(u32::MAX);
+    let context = RunContext::new(observer, cancel, RANDOM_STAGES);
+    let stage = context.stage(0)?;
     let mut canvas = Canvas::new(w, h);
     let mut adam = Adam::new(AdamSettings::default(), Bounds::canvas(w, h, 1.0));
     let (mut render, mut d_render) = (Image::default(), Image::default());
@@ -149,7 +152,7 @@ pub fn random_baseline(
             .raster
             .backward(&scene.albedo.paths, [1.0; 3], &d_render, &mut grads);
         adam.step(&mut scene.albedo.paths, &grads);
-        ctx.iteration(stage, it + 1, iterations, Some(loss))?;
+        stage.iteration(it + 1, iterations, Some(loss))?;
     }
     tracing::debug!(
         seconds = started.elapsed().as_secs_f32(),

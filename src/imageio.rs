@@ -1,10 +1,12 @@
-//! Decoding inputs under limits, and encoding previews.
+//! Decoding inputs under limits, checking that they fit together, resizing to the working size,
+//! and encoding previews.
 //!
 //! Every decoder here reads the header first and refuses an image over [`Limits::max_pixels`]
 //! before any pixel is decoded, so a small file claiming a huge canvas costs nothing.
 
 use std::io::Cursor;
 
+use image::imageops::FilterType;
 use image::{DynamicImage, GrayImage, ImageDecoder, ImageReader};
 
 use crate::render::Image;
@@ -49,6 +51,34 @@ pub enum InputError {
     NonBinaryMask { name: String, levels: usize },
     #[error("{count} masks given, more than the limit of {max} (raise --max-masks)")]
     TooManyMasks { count: usize, max: usize },
+    #[error(
+        "{what} is {width}×{height}, which does not have the image's aspect ratio ({image_width}×{image_height})"
+    )]
+    AspectRatio {
+        what: String,
+        width: u32,
+        height: u32,
+        image_width: u32,
+        image_height: u32,
+    },
+}
+
+/// Refuses `size` unless it has the aspect ratio of `image` within one pixel of rounding: an
+/// albedo map, mask or reference may be a scaled copy of the image, not a crop of it. The one
+/// aspect rule of every input (pipeline, service, editor); `what` names the input in the error.
+pub fn check_aspect(what: &str, size: (u32, u32), image: (u32, u32)) -> Result<(), InputError> {
+    let ((w, h), (iw, ih)) = (size, image);
+    let cross = (u64::from(w) * u64::from(ih)).abs_diff(u64::from(h) * u64::from(iw));
+    if w == 0 || h == 0 || cross > u64::from(iw.max(ih)) {
+        return Err(InputError::AspectRatio {
+            what: what.to_owned(),
+            width: w,
+            height: h,
+            image_width: iw,
+            image_height: ih,
+        });
+    }
+    Ok(())
 }
 
 /// Decodes PNG/JPEG/WebP bytes with EXIF orientation applied, refusing more than `limits.max_pixels`
@@ -106,8 +136,8 @@ pub fn decode_masks<'a>(
 }
 
 /// Decodes a label map (each distinct colour or grey value is a segment), refusing more than
-/// `limits.max_masks` distinct values. Returned as decoded (orientation applied), for
-/// [`crate::pipeline::Masks::Labels`].
+/// `limits.max_masks` distinct values. Returned as decoded (orientation applied), for the
+/// pipeline's label-map input.
 pub fn decode_labels(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputError> {
     let image = decode_oriented(bytes, limits)?;
     let rgba = image.to_rgba16();
@@ -146,6 +176,40 @@ pub fn to_rgb_image(image: &DynamicImage) -> Image {
         width: rgb.width() as usize,
         height: rgb.height() as usize,
         data: rgb.into_raw(),
+    }
+}
+
+/// Width and height at which an image is processed: the long side brought down to `max_size`,
+/// never up, aspect ratio kept.
+pub fn working_size(width: u32, height: u32, max_size: u32) -> (u32, u32) {
+    let long = width.max(height);
+    if long <= max_size {
+        return (width, height);
+    }
+    let scale = f64::from(max_size) / f64::from(long);
+    let fit = |v: u32| ((f64::from(v) * scale).round() as u32).clamp(1, max_size);
+    (fit(width), fit(height))
+}
+
+/// The image as f32 RGB at `w × h` (triangle filter, values in [0, 1]; unchanged when it
+/// already has that size): how every stage and measurement sees an input at working size.
+pub fn resize_rgb(image: &DynamicImage, w: u32, h: u32) -> Image {
+    let rgb = to_rgb_image(image);
+    if (rgb.width, rgb.height) == (w as usize, h as usize) {
+        return rgb;
+    }
+    let buffer = image::Rgb32FImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data)
+        .expect("same size");
+    let small = image::imageops::resize(&buffer, w, h, FilterType::Triangle);
+    let data = small
+        .into_raw()
+        .into_iter()
+        .map(|v| v.clamp(0.0, 1.0))
+        .collect();
+    Image {
+        width: w as usize,
+        height: h as usize,
+        data,
     }
 }
 

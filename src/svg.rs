@@ -1,8 +1,8 @@
 //! The SVG writer: one layered SVG whose blend modes show `clamp01(albedo · shade + light)`,
 //! and standalone per-layer SVGs.
 //!
-//! Rules (notes/rendering.md §2): blend modes in `style` (browsers and resvg ignore the
-//! attribute form), `isolation:isolate` on the root, colours and opacities clamped to [0, 1],
+//! Rules, so that browsers show what covec's renderer optimised: blend modes in `style`
+//! (browsers and resvg ignore the attribute form), `isolation:isolate` on the root, colours and opacities clamped to [0, 1],
 //! explicit `fill-rule="nonzero"`, paths closed with `Z`. Output depends only on the scene, so
 //! equal scenes give byte-identical files.
 

@@ -6,7 +6,8 @@
 use std::sync::atomic::AtomicBool;
 
 use covec::edit::{ReferenceParams, recolor_by_reference};
-use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet, composite};
+use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet};
+use covec::render::composite::composite;
 use covec::render::Image;
 use covec::scene::Scene;
 use covec::synth::{self, SyntheticScene};

@@ -1,4 +1,5 @@
 //! `covec vectorize` end to end: files written, previews, layers, and one-line errors.
+#![cfg(all(feature = "cli", feature = "service"))]
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

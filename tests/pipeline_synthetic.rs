@@ -4,7 +4,7 @@
 
 use std::sync::atomic::AtomicBool;
 
-use covec::pipeline::composite;
+use covec::render::composite::composite;
 use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet};
 use covec::render::Image;
 use covec::render::Rasterizer;

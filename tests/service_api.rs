@@ -1,5 +1,6 @@
 //! The service's HTTP contract without running the pipeline to the end: bad requests, auth and
 //! visibility, listing, operations endpoints, and the OpenAPI document against the router.
+#![cfg(all(feature = "cli", feature = "service"))]
 
 mod service_support;
 

@@ -1,5 +1,6 @@
 //! Edits through the API: direct recolour (by id and by point, chained on a base edit),
 //! recolour by reference image, and bad edit requests → 4xx problem+json.
+#![cfg(all(feature = "cli", feature = "service"))]
 
 mod service_support;
 

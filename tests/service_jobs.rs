@@ -1,5 +1,6 @@
 //! Jobs end to end through the real pipeline: success and results, events, cancel, queue
 //! limits, idempotency, restart recovery. Tiny images and iteration counts keep each job short.
+#![cfg(all(feature = "cli", feature = "service"))]
 
 mod service_support;
 

@@ -197,7 +197,7 @@ fn our_composite_equals_resvg_drawing_the_svg() {
     for scene in [scene_with_light(), vectorize(photo(48, 48), Mode::Simple)] {
         let svg = to_svg(&scene, &SvgOptions::default());
         let theirs = resvg_render(&svg, scene.width, scene.height);
-        let ours = pipeline::composite(&scene);
+        let ours = covec::render::composite::composite(&scene);
         let mean_abs: f32 = ours
             .data
             .iter()

@@ -1,15 +1,16 @@
 //! `covec edit`: recolour albedo paths of a scene while shade and light keep the lighting.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use clap::Args as ClapArgs;
 
-use covec::decompose::resize_rgb;
+use super::io::{self, IoError};
 use covec::edit::{self, ColorChange, EditError, ReferenceParams, Target};
-use covec::imageio::{self, InputError, Limits};
-use covec::pipeline;
+use covec::imageio::{InputError, Limits, check_aspect, resize_rgb};
+use covec::output::{self, EDIT_FILES, FileKind};
+use covec::render::composite::composite;
 use covec::scene::{PathId, Point, Scene};
-use covec::svg::{self, SvgOptions};
+use covec::svg;
 
 /// Recolour a vectorised scene: from an edited reference image (paper Appendix D) or by path.
 ///
@@ -25,7 +26,7 @@ pub struct Args {
     /// its colours, divided by the shade under them.
     #[arg(long, value_name = "EDITED.png", required_unless_present_any = ["set", "at"])]
     pub reference: Option<PathBuf>,
-    /// The original image the reference was edited from (same size as the reference).
+    /// The original image the reference was edited from (same aspect ratio as the reference).
     /// Default: the scene's own rendering, which counts vectorisation error as edits too.
     #[arg(long, value_name = "IMAGE", requires = "reference")]
     pub original: Option<PathBuf>,
@@ -64,37 +65,25 @@ pub struct Args {
 /// Why `covec edit` failed; printed as one line.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    #[error("cannot read {path}: {source}")]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("cannot write {path}: {source}")]
-    Write {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Io(#[from] IoError),
     #[error("{path} is not a covec scene: {source}")]
     Scene {
         path: PathBuf,
         source: serde_json::Error,
     },
-    #[error("{path}: {source}")]
-    Image { path: PathBuf, source: InputError },
     #[error("`{0}` is not PATH_ID=#RRGGBB (e.g. albedo-3=#cc2200)")]
     BadSet(String),
     #[error("`{0}` is not X,Y=#RRGGBB (e.g. 120.5,88=#3366ff)")]
     BadAt(String),
-    #[error("the reference is {0}×{1} but the original is {2}×{3}; they must be the same size")]
-    SizeMismatch(u32, u32, u32, u32),
-    #[error("the reference's aspect ratio differs from the scene's ({0}×{1})")]
-    AspectMismatch(u32, u32),
+    #[error(transparent)]
+    Input(#[from] InputError),
     #[error(transparent)]
     Edit(#[from] EditError),
 }
 
 pub fn run(args: &Args) -> Result<(), Error> {
-    let bytes = read(&args.scene)?;
+    let bytes = io::read(&args.scene)?;
     let scene: Scene = serde_json::from_slice(&bytes).map_err(|source| Error::Scene {
         path: args.scene.clone(),
         source,
@@ -108,33 +97,25 @@ pub fn run(args: &Args) -> Result<(), Error> {
                 delta: args.delta,
                 epsilon: args.epsilon,
             };
-            let reference_image = decode(reference)?;
-            let (rw, rh) = (reference_image.width(), reference_image.height());
-            // Same aspect ratio as the scene's original, within one pixel of rounding.
-            if (u64::from(rw) * u64::from(scene.original_height))
-                .abs_diff(u64::from(rh) * u64::from(scene.original_width))
-                > u64::from(rw.max(rh))
-            {
-                return Err(Error::AspectMismatch(
-                    scene.original_width,
-                    scene.original_height,
-                ));
-            }
+            let reference_image = io::decode_image(reference, &Limits::default())?;
+            let reference_size = (reference_image.width(), reference_image.height());
+            check_aspect(
+                "the reference",
+                reference_size,
+                (scene.original_width, scene.original_height),
+            )?;
             let (w, h) = (scene.width, scene.height);
             let original = match &args.original {
                 Some(path) => {
-                    let original = decode(path)?;
-                    if (original.width(), original.height()) != (rw, rh) {
-                        return Err(Error::SizeMismatch(
-                            rw,
-                            rh,
-                            original.width(),
-                            original.height(),
-                        ));
-                    }
+                    let original = io::decode_image(path, &Limits::default())?;
+                    check_aspect(
+                        "the original",
+                        (original.width(), original.height()),
+                        reference_size,
+                    )?;
                     resize_rgb(&original, w, h)
                 }
-                None => pipeline::composite(&scene),
+                None => composite(&scene),
             };
             edit::recolor_by_reference(
                 &scene,
@@ -155,22 +136,21 @@ pub fn run(args: &Args) -> Result<(), Error> {
         }
     };
 
-    let options = SvgOptions::default();
-    write(&args.output, svg::to_svg(&edit.scene, &options).as_bytes())?;
     let json = args
         .json
         .clone()
         .unwrap_or_else(|| args.output.with_extension("json"));
-    write(
-        &json,
-        &serde_json::to_vec_pretty(&edit.scene).expect("a scene serialises"),
-    )?;
-    if let Some(preview) = &args.preview {
-        write(
-            preview,
-            &imageio::encode_png(&pipeline::composite(&edit.scene)),
-        )?;
-    }
+    let kinds: &[FileKind] = if args.preview.is_some() {
+        EDIT_FILES
+    } else {
+        &[FileKind::SceneJson, FileKind::LayeredSvg]
+    };
+    io::write_artefacts(&output::artefacts(&edit.scene, kinds), |kind| match kind {
+        FileKind::LayeredSvg => Some(args.output.clone()),
+        FileKind::SceneJson => Some(json.clone()),
+        FileKind::Preview => args.preview.clone(),
+        FileKind::Layer(_) => None,
+    })?;
     if edit.changed.is_empty() {
         println!("no path changed");
     }
@@ -203,26 +183,5 @@ fn parse_at(text: &str) -> Option<ColorChange> {
         target: Target::AlbedoAt(point),
         color: svg::parse_hex_colour(colour.trim())?,
         opacity: None,
-    })
-}
-
-fn read(path: &Path) -> Result<Vec<u8>, Error> {
-    std::fs::read(path).map_err(|source| Error::Read {
-        path: path.to_owned(),
-        source,
-    })
-}
-
-fn write(path: &Path, bytes: &[u8]) -> Result<(), Error> {
-    std::fs::write(path, bytes).map_err(|source| Error::Write {
-        path: path.to_owned(),
-        source,
-    })
-}
-
-fn decode(path: &Path) -> Result<image::DynamicImage, Error> {
-    imageio::decode_image(&read(path)?, &Limits::default()).map_err(|source| Error::Image {
-        path: path.to_owned(),
-        source,
     })
 }

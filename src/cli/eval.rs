@@ -8,11 +8,11 @@ use std::time::Instant;
 
 use clap::Args as ClapArgs;
 
+use super::io::{self, IoError};
 use covec::eval::{self, Quality};
-use covec::imageio::{self, InputError, Limits};
-use covec::pipeline::stage::StageContext;
-use covec::pipeline::{self, Inputs, Masks, Mode, Params, Quiet};
-use covec::render::Image;
+use covec::imageio::{self, InputError, Limits, resize_rgb, working_size};
+use covec::pipeline::{self, Inputs, Masks, Mode, Params, Quiet, ResolvedMode};
+use covec::render::composite::composite;
 use covec::scene::Scene;
 use covec::svg::{self, SvgOptions};
 
@@ -43,9 +43,9 @@ pub struct Args {
     #[arg(long, value_name = "results.csv")]
     pub out: Option<PathBuf>,
     /// Working size (long side), as for `covec vectorize`.
-    #[arg(long, default_value_t = 512, value_name = "PX")]
+    #[arg(long, default_value_t = Params::default().max_size, value_name = "PX")]
     pub max_size: u32,
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = Params::default().seed)]
     pub seed: u64,
     /// Multiplies every stage's iteration count (e.g. 0.5 for a quicker, rougher eval).
     #[arg(long, default_value_t = 1.0, value_name = "F")]
@@ -73,22 +73,14 @@ impl Method {
 
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    #[error("cannot read {path}: {source}")]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Io(#[from] IoError),
     #[error("{path}: {source}")]
     Input { path: PathBuf, source: InputError },
     #[error("{path}: {source}")]
     Pipeline {
         path: PathBuf,
         source: pipeline::Error,
-    },
-    #[error("cannot write {path}: {source}")]
-    Write {
-        path: PathBuf,
-        source: std::io::Error,
     },
     #[error("no images found in the given inputs")]
     NoImages,
@@ -153,10 +145,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let mut rows = Vec::new();
     let total = images.len() * args.paths.len() * args.method.len();
     for image_path in &images {
-        let bytes = std::fs::read(image_path).map_err(|source| Error::Read {
-            path: image_path.clone(),
-            source,
-        })?;
+        let bytes = io::read(image_path)?;
         for &budget in &args.paths {
             for &method in &args.method {
                 let row = run_one(image_path, &bytes, method, budget, args)?;
@@ -182,10 +171,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
         }
     }
     match &args.out {
-        Some(path) => std::fs::write(path, &csv).map_err(|source| Error::Write {
-            path: path.clone(),
-            source,
-        })?,
+        Some(path) => io::write(path, csv.as_bytes())?,
         None => print!("{csv}"),
     }
     eprint!("{}", summary(&rows));
@@ -225,21 +211,15 @@ fn run_one(
     eval::reset_peak_memory();
     let started = Instant::now();
     let image = imageio::decode_image(bytes, &Limits::default()).map_err(input_error)?;
-    let (w, h) = covec::decompose::working_size(image.width(), image.height(), args.max_size);
-    let target = working_image(&image, w, h);
+    let (w, h) = working_size(image.width(), image.height(), args.max_size);
+    let target = resize_rgb(&image, w, h);
     let cancel = AtomicBool::new(false);
-    let (scene, mode): (Scene, Mode) = match method {
+    let (scene, mode): (Scene, ResolvedMode) = match method {
         Method::Random => {
-            let ctx = StageContext {
-                observer: &Quiet,
-                cancel: &cancel,
-                started,
-                stage_count: 1,
-            };
-            let mut scene =
-                eval::random_baseline(&target, &params, &ctx).map_err(pipeline_error)?;
+            let mut scene = eval::random_baseline(&target, &params, &Quiet, &cancel)
+                .map_err(pipeline_error)?;
             (scene.original_width, scene.original_height) = (image.width(), image.height());
-            (scene, Mode::Simple)
+            (scene, ResolvedMode::Simple)
         }
         _ => {
             params.mode = match method {
@@ -260,7 +240,7 @@ fn run_one(
     let svg_bytes = svg::to_svg(&scene, &SvgOptions::default()).len();
     let seconds = started.elapsed().as_secs_f64();
     let peak_mb = eval::peak_memory_bytes().map(|b| b as f64 / (1024.0 * 1024.0));
-    let quality = eval::quality(&pipeline::composite(&scene), &target);
+    let quality = eval::quality(&composite(&scene), &target);
     Ok(Row {
         image: path
             .file_stem()
@@ -272,11 +252,7 @@ fn run_one(
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default(),
         method: method.name(),
-        mode: match mode {
-            Mode::Simple => "simple",
-            Mode::Photo => "photo",
-            Mode::Auto => "auto",
-        },
+        mode: mode.name(),
         budget,
         paths: [
             scene.albedo.paths.len(),
@@ -289,26 +265,6 @@ fn run_one(
         seconds,
         peak_mb,
     })
-}
-
-/// The image at working size, as the pipeline sees it (triangle filter, values in [0, 1]).
-fn working_image(image: &image::DynamicImage, w: u32, h: u32) -> Image {
-    let rgb = imageio::to_rgb_image(image);
-    if (rgb.width, rgb.height) == (w as usize, h as usize) {
-        return rgb;
-    }
-    let buffer = image::Rgb32FImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data)
-        .expect("same size");
-    let small = image::imageops::resize(&buffer, w, h, image::imageops::FilterType::Triangle);
-    Image {
-        width: w as usize,
-        height: h as usize,
-        data: small
-            .into_raw()
-            .into_iter()
-            .map(|v| v.clamp(0.0, 1.0))
-            .collect(),
-    }
 }
 
 /// Mean MS-SSIM of the rows that have one (images of at least 11 px), blank if none has.
@@ -326,30 +282,17 @@ fn mean_ms_ssim(rows: &[&Row]) -> String {
 
 fn collect_images(path: &Path, out: &mut Vec<PathBuf>) -> Result<(), Error> {
     if path.is_dir() {
-        let entries = std::fs::read_dir(path).map_err(|source| Error::Read {
+        for entry in io::list_dir(path)? {
+            collect_images(&entry, out)?;
+        }
+    } else if io::is_image_file(path) {
+        out.push(path.to_path_buf());
+    } else if !path.exists() {
+        return Err(IoError::Read {
             path: path.to_path_buf(),
-            source,
-        })?;
-        for entry in entries {
-            let entry = entry.map_err(|source| Error::Read {
-                path: path.to_path_buf(),
-                source,
-            })?;
-            collect_images(&entry.path(), out)?;
+            source: std::io::ErrorKind::NotFound.into(),
         }
-    } else {
-        let ext = path
-            .extension()
-            .map(|e| e.to_string_lossy().to_ascii_lowercase())
-            .unwrap_or_default();
-        if matches!(ext.as_str(), "png" | "jpg" | "jpeg" | "webp") {
-            out.push(path.to_path_buf());
-        } else if !path.exists() {
-            return Err(Error::Read {
-                path: path.to_path_buf(),
-                source: std::io::ErrorKind::NotFound.into(),
-            });
-        }
+        .into());
     }
     Ok(())
 }

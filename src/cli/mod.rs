@@ -2,5 +2,6 @@
 
 pub mod edit;
 pub mod eval;
+pub mod io;
 pub mod serve;
 pub mod vectorize;

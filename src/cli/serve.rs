@@ -16,43 +16,43 @@ use covec::service::{self, Config};
 #[derive(Args, Debug)]
 pub struct ServeArgs {
     /// Address to listen on.
-    #[arg(long, env = "COVEC_ADDR", default_value = "127.0.0.1:8080")]
+    #[arg(long, env = "COVEC_ADDR", default_value_t = Config::default().addr)]
     addr: SocketAddr,
     /// Directory for the job database and results (created if missing).
-    #[arg(long, env = "COVEC_DATA_DIR", default_value = "covec-data")]
+    #[arg(long, env = "COVEC_DATA_DIR", default_value_os_t = Config::default().data_dir)]
     data_dir: PathBuf,
     /// Jobs run at once; the pipeline threads are shared out among them.
-    #[arg(long, env = "COVEC_WORKERS", default_value_t = 1)]
+    #[arg(long, env = "COVEC_WORKERS", default_value_t = QueueConfig::default().workers)]
     workers: usize,
     /// Pipeline threads in total [default: number of cores].
     #[arg(long, env = "COVEC_THREADS")]
     threads: Option<usize>,
     /// Most jobs waiting for a worker; more get 503 with Retry-After.
-    #[arg(long, env = "COVEC_MAX_QUEUED", default_value_t = 64)]
+    #[arg(long, env = "COVEC_MAX_QUEUED", default_value_t = QueueConfig::default().max_queued)]
     max_queued: usize,
     /// Largest request body, in bytes.
-    #[arg(long, env = "COVEC_MAX_BODY_BYTES", default_value_t = 32 << 20)]
+    #[arg(long, env = "COVEC_MAX_BODY_BYTES", default_value_t = InputLimits::default().max_body_bytes)]
     max_body_bytes: u64,
     /// Largest image (also albedo, masks, label map), in pixels.
-    #[arg(long, env = "COVEC_MAX_PIXELS", default_value_t = 16_000_000)]
+    #[arg(long, env = "COVEC_MAX_PIXELS", default_value_t = InputLimits::default().max_pixels)]
     max_pixels: u64,
     /// Most masks per job.
-    #[arg(long, env = "COVEC_MAX_MASKS", default_value_t = 256)]
+    #[arg(long, env = "COVEC_MAX_MASKS", default_value_t = InputLimits::default().max_masks)]
     max_masks: usize,
     /// Largest `params.paths`.
-    #[arg(long, env = "COVEC_MAX_PATHS", default_value_t = 1024)]
+    #[arg(long, env = "COVEC_MAX_PATHS", default_value_t = InputLimits::default().max_paths)]
     max_paths: u32,
     /// Largest `params.max_size` (working size, long side).
-    #[arg(long, env = "COVEC_MAX_SIZE", default_value_t = 1024)]
+    #[arg(long, env = "COVEC_MAX_SIZE", default_value_t = InputLimits::default().max_size)]
     max_size: u32,
     /// Largest total iteration budget of one job.
-    #[arg(long, env = "COVEC_MAX_ITERATIONS", default_value_t = 5000)]
+    #[arg(long, env = "COVEC_MAX_ITERATIONS", default_value_t = InputLimits::default().max_iterations)]
     max_iterations: u64,
     /// Wall-clock limit of one job, in seconds; then it fails with code `time-limit`.
-    #[arg(long, env = "COVEC_JOB_TIME_LIMIT", default_value_t = 600)]
+    #[arg(long, env = "COVEC_JOB_TIME_LIMIT", default_value_t = QueueConfig::default().job_time_limit.as_secs())]
     job_time_limit: u64,
     /// How long results are kept after a job ends, in seconds.
-    #[arg(long, env = "COVEC_RETENTION", default_value_t = 86_400)]
+    #[arg(long, env = "COVEC_RETENTION", default_value_t = QueueConfig::default().retention.as_secs())]
     retention: u64,
     /// Accepted API keys, comma-separated; none means no authentication.
     #[arg(
@@ -66,7 +66,7 @@ pub struct ServeArgs {
     #[arg(long, env = "COVEC_CORS_ORIGINS", value_delimiter = ',')]
     cors_origins: Vec<String>,
     /// Seconds running jobs may finish after SIGTERM before they are re-queued for the next start.
-    #[arg(long, env = "COVEC_SHUTDOWN_GRACE", default_value_t = 30)]
+    #[arg(long, env = "COVEC_SHUTDOWN_GRACE", default_value_t = Config::default().shutdown_grace.as_secs())]
     shutdown_grace: u64,
 }
 

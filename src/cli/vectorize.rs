@@ -8,11 +8,11 @@ use std::sync::atomic::AtomicBool;
 use clap::Args as ClapArgs;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use covec::imageio::{self, InputError, Limits};
+use super::io::{self, IoError};
+use covec::imageio::{self, Limits};
+use covec::output::FileKind;
 use covec::pipeline::{self, Inputs, Masks, Mode, Observer, Params, Progress};
 use covec::render::Image;
-use covec::scene::LayerKind;
-use covec::svg::{self, SvgOptions};
 
 /// Vectorize an image into a layered SVG (albedo × shade + light).
 #[derive(ClapArgs, Debug)]
@@ -38,19 +38,20 @@ pub struct Args {
     #[arg(long, value_name = "L.png")]
     pub labels: Option<PathBuf>,
     /// Total path budget over all layers, base path included (8-1024).
-    #[arg(long, default_value_t = 64, value_name = "N")]
+    #[arg(long, default_value_t = Params::default().paths, value_name = "N")]
     pub paths: u32,
     /// photo: albedo, shade and light layers; simple: albedo only, for emoji, icons and flat
-    /// artwork; auto: simple when at least half of the image is flat colour, else photo.
-    #[arg(long, value_enum, default_value_t = Mode::Auto)]
+    /// artwork; auto: simple when the 16 most frequent exact colours cover at least 30% of the
+    /// image, else photo.
+    #[arg(long, value_enum, default_value_t = Params::default().mode)]
     pub mode: Mode,
     /// Working size: the long side is scaled down to this many pixels, never up (16-4096).
     /// The SVG keeps the original size through its viewBox.
-    #[arg(long, default_value_t = 512, value_name = "PX")]
+    #[arg(long, default_value_t = Params::default().max_size, value_name = "PX")]
     pub max_size: u32,
     /// Seed for every random choice of the optimisation stages (initialisation itself is
     /// deterministic); equal inputs and seed give byte-identical output.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = Params::default().seed)]
     pub seed: u64,
     /// Write preview PNGs of each stage (input, albedo map, masks, layers, composite) here.
     #[arg(long, value_name = "DIR")]
@@ -69,22 +70,12 @@ pub struct Args {
 /// Why `covec vectorize` failed; printed as one line.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    #[error("cannot read {path}: {source}")]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path}: {source}")]
-    Input { path: PathBuf, source: InputError },
+    #[error(transparent)]
+    Io(#[from] IoError),
     #[error("{path}: no mask images (.png, .jpg, .jpeg, .webp) in this directory")]
     NoMasks { path: PathBuf },
     #[error(transparent)]
     Pipeline(#[from] pipeline::Error),
-    #[error("cannot write {path}: {source}")]
-    Write {
-        path: PathBuf,
-        source: std::io::Error,
-    },
 }
 
 pub fn run(args: &Args) -> Result<(), Error> {
@@ -92,21 +83,15 @@ pub fn run(args: &Args) -> Result<(), Error> {
         max_pixels: args.max_pixels,
         max_masks: args.max_masks,
     };
-    let decode = |path: &Path| -> Result<image::DynamicImage, Error> {
-        let bytes = read(path)?;
-        imageio::decode_image(&bytes, &limits).map_err(|source| Error::Input {
-            path: path.into(),
-            source,
-        })
-    };
+    let decode = |path: &Path| io::decode_image(path, &limits);
     let image = decode(&args.input)?;
     let albedo = args.albedo.as_deref().map(decode).transpose()?;
     let masks = if let Some(dir) = &args.masks {
         Masks::Binary(read_mask_dir(dir, &limits)?)
     } else if let Some(path) = &args.labels {
-        let bytes = read(path)?;
+        let bytes = io::read(path)?;
         Masks::Labels(
-            imageio::decode_labels(&bytes, &limits).map_err(|source| Error::Input {
+            imageio::decode_labels(&bytes, &limits).map_err(|source| IoError::Input {
                 path: path.clone(),
                 source,
             })?,
@@ -123,7 +108,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
     };
     let observer = CliObserver::new(args.previews.clone());
     if let Some(dir) = &args.previews {
-        create_dir(dir)?;
+        io::create_dir(dir)?;
     }
     let output = pipeline::run(
         &Inputs {
@@ -137,7 +122,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
     );
     observer.finish();
     if let Some(error) = observer.write_error.into_inner().expect("not poisoned") {
-        return Err(error);
+        return Err(error.into());
     }
     let output = output?;
 
@@ -149,26 +134,21 @@ pub fn run(args: &Args) -> Result<(), Error> {
         .json
         .clone()
         .unwrap_or_else(|| svg_path.with_extension("json"));
-    let options = SvgOptions::default();
-    write(&svg_path, svg::to_svg(&output.scene, &options).as_bytes())?;
-    let json = serde_json::to_string_pretty(&output.scene).expect("a scene always serialises");
-    write(&json_path, json.as_bytes())?;
     if let Some(dir) = &args.layers {
-        create_dir(dir)?;
-        for kind in LayerKind::ALL {
-            let path = dir.join(format!("{}.svg", kind.name()));
-            write(
-                &path,
-                svg::layer_to_svg(&output.scene, kind, &options).as_bytes(),
-            )?;
-        }
+        io::create_dir(dir)?;
     }
+    io::write_artefacts(&output.artefacts(), |kind| match kind {
+        FileKind::LayeredSvg => Some(svg_path.clone()),
+        FileKind::SceneJson => Some(json_path.clone()),
+        FileKind::Layer(layer) => (args.layers.as_ref()).map(|dir| dir.join(format!("{}.svg", layer.name()))),
+        FileKind::Preview => None,
+    })?;
     if std::io::stderr().is_terminal() {
         let scene = &output.scene;
         eprintln!(
-            "{}: {:?} mode, {} paths ({} albedo, {} shade, {} light), {} segments",
+            "{}: {} mode, {} paths ({} albedo, {} shade, {} light), {} segments",
             svg_path.display(),
-            output.mode,
+            output.mode.name(),
             scene.path_count(),
             scene.albedo.paths.len(),
             scene.shade.paths.len(),
@@ -179,66 +159,31 @@ pub fn run(args: &Args) -> Result<(), Error> {
     Ok(())
 }
 
-fn read(path: &Path) -> Result<Vec<u8>, Error> {
-    std::fs::read(path).map_err(|source| Error::Read {
-        path: path.into(),
-        source,
-    })
-}
-
-fn write(path: &Path, bytes: &[u8]) -> Result<(), Error> {
-    std::fs::write(path, bytes).map_err(|source| Error::Write {
-        path: path.into(),
-        source,
-    })
-}
-
-fn create_dir(dir: &Path) -> Result<(), Error> {
-    std::fs::create_dir_all(dir).map_err(|source| Error::Write {
-        path: dir.into(),
-        source,
-    })
-}
-
 /// The image files of a directory, in file-name order, decoded as binary masks.
 fn read_mask_dir(dir: &Path, limits: &Limits) -> Result<Vec<image::GrayImage>, Error> {
-    let entries = std::fs::read_dir(dir).map_err(|source| Error::Read {
-        path: dir.into(),
-        source,
-    })?;
-    let mut paths = Vec::new();
-    for entry in entries {
-        let path = entry
-            .map_err(|source| Error::Read {
-                path: dir.into(),
-                source,
-            })?
-            .path();
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase);
-        if matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg" | "webp")) {
-            paths.push(path);
-        }
-    }
+    let paths: Vec<PathBuf> = io::list_dir(dir)?
+        .into_iter()
+        .filter(|path| io::is_image_file(path))
+        .collect();
     if paths.is_empty() {
         return Err(Error::NoMasks { path: dir.into() });
     }
-    paths.sort();
     let files = paths
         .iter()
-        .map(|p| Ok((p.display().to_string(), read(p)?)))
-        .collect::<Result<Vec<_>, Error>>()?;
+        .map(|p| Ok((p.display().to_string(), io::read(p)?)))
+        .collect::<Result<Vec<_>, IoError>>()?;
     imageio::decode_masks(
         files
             .iter()
             .map(|(name, bytes)| (name.as_str(), bytes.as_slice())),
         limits,
     )
-    .map_err(|source| Error::Input {
-        path: dir.into(),
-        source,
+    .map_err(|source| {
+        IoError::Input {
+            path: dir.into(),
+            source,
+        }
+        .into()
     })
 }
 
@@ -247,7 +192,7 @@ struct CliObserver {
     bar: Option<ProgressBar>,
     previews: Option<PathBuf>,
     /// The first preview that could not be written; reported after the run.
-    write_error: Mutex<Option<Error>>,
+    write_error: Mutex<Option<IoError>>,
 }
 
 impl CliObserver {
@@ -302,7 +247,7 @@ impl Observer for CliObserver {
         let path = dir.join(format!("{name}.png"));
         if let Err(source) = std::fs::write(&path, imageio::encode_png(image)) {
             let mut slot = self.write_error.lock().expect("not poisoned");
-            slot.get_or_insert(Error::Write { path, source });
+            slot.get_or_insert(IoError::Write { path, source });
         }
     }
 }

@@ -46,3 +46,43 @@ pub fn binarize(target: &Image, regions: &[Mask], min_area: usize) -> Vec<Candid
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::decompose::mask::Mask;
+    use crate::render::Image;
+
+    #[test]
+    fn region_wise_binarisation_thresholds_each_region_at_its_own_mean() {
+        // Left region: 0.2 / 0.4 stripes; right region: 0.6 / 0.8 stripes. A global threshold
+        // (0.5) would call the whole left half shadow and nothing on the right.
+        let (w, h) = (40usize, 20usize);
+        let value = |x: usize, y: usize| match (x < 20, y < 10) {
+            (true, true) => 0.2,
+            (true, false) => 0.4,
+            (false, true) => 0.6,
+            (false, false) => 0.8,
+        };
+        let mut image = Image::filled(w, h, [0.0; 3]);
+        for y in 0..h {
+            for x in 0..w {
+                image.data[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[value(x, y); 3]);
+            }
+        }
+        let regions = [
+            Mask::from_fn(w, h, |x, _| x < 20),
+            Mask::from_fn(w, h, |x, _| x >= 20),
+        ];
+        let mut shadows: Vec<Mask> = binarize(&image, &regions, 4)
+            .into_iter()
+            .map(|c| c.mask)
+            .collect();
+        shadows.sort_by_key(|m| m.bbox());
+        let expected = [
+            Mask::from_fn(w, h, |x, y| x < 20 && y < 10),
+            Mask::from_fn(w, h, |x, y| x >= 20 && y < 10),
+        ];
+        assert_eq!(shadows, expected);
+    }
+}

@@ -10,12 +10,13 @@
 //! Simple mode (paper Appendix C.2): albedo only; segmentation masks and binarisation masks both
 //! seed albedo paths, filled with the mean image colour.
 
-use super::{Error, Mode, Params};
+use super::decompose::Decomposition;
+use super::params::{Params, ResolvedMode};
 use crate::decompose::binarize::binarize;
 use crate::decompose::mask::Mask;
 use crate::decompose::organize::organize;
 use crate::decompose::segment::Candidate;
-use crate::decompose::{Decomposition, channel_sums, min_mask_area};
+use crate::decompose::{channel_sums, min_mask_area};
 use crate::geom::contour::simplify_closed;
 use crate::render::Image;
 use crate::scene::{LayerKind, Path, Scene};
@@ -61,11 +62,11 @@ pub const STRUCTURE_SHARE: f32 = 0.4;
 pub const ALBEDO_SHARE: f32 = 0.6;
 
 impl Budget {
-    pub fn new(total: usize, mode: Mode) -> Self {
+    pub fn new(total: usize, mode: ResolvedMode) -> Self {
         let structure = ((total as f32 * STRUCTURE_SHARE) as usize).clamp(1, total);
         let albedo = match mode {
-            Mode::Simple => structure,
-            _ => ((structure as f32 * ALBEDO_SHARE).ceil() as usize).clamp(1, structure),
+            ResolvedMode::Simple => structure,
+            ResolvedMode::Photo => ((structure as f32 * ALBEDO_SHARE).ceil() as usize).clamp(1, structure),
         };
         Self {
             total,
@@ -87,7 +88,7 @@ pub struct InitState {
     pub albedo: LayerGroups,
     /// Illumination structure paths (in `scene.shade`); no groups in simple mode.
     pub illumination: LayerGroups,
-    pub mode: Mode,
+    pub mode: ResolvedMode,
     pub budget: Budget,
 }
 
@@ -98,11 +99,7 @@ pub fn simplify_tolerance(width: usize, height: usize) -> f32 {
 }
 
 /// The init stage.
-pub fn run(
-    decomposition: Decomposition,
-    params: &Params,
-    original: (u32, u32),
-) -> Result<InitState, Error> {
+pub(crate) fn run(decomposition: Decomposition, params: &Params, original: (u32, u32)) -> InitState {
     let Decomposition {
         target,
         albedo: albedo_map,
@@ -117,16 +114,16 @@ pub fn run(
 
     let mut albedo_masks = select(&candidates, budget.albedo, true, w, h);
     let mut illumination_masks = Vec::new();
-    if budget.albedo > 1 || mode == Mode::Photo {
+    if budget.albedo > 1 || mode == ResolvedMode::Photo {
         let regions = visible_parts(&albedo_masks, w, h);
         let shadows = sorted(binarize(&target, &regions, min_area));
         match mode {
-            Mode::Simple => {
+            ResolvedMode::Simple => {
                 let mut all = candidates.clone();
                 all.extend(shadows);
                 albedo_masks = select(&sorted(all), budget.albedo, true, w, h);
             }
-            _ => illumination_masks = select(&shadows, budget.illumination, false, w, h),
+            ResolvedMode::Photo => illumination_masks = select(&shadows, budget.illumination, false, w, h),
         }
     }
 
@@ -139,10 +136,10 @@ pub fn run(
         &mut scene,
         |visible| mean_ratio(&target, &albedo_map, visible).map(|c| c.map(|v| v.clamp(0.0, 1.0))),
     );
-    if mode != Mode::Simple {
+    if mode == ResolvedMode::Photo {
         fit_fills(&mut scene, &target, &albedo, &illumination);
     }
-    Ok(InitState {
+    InitState {
         scene,
         target,
         albedo_map,
@@ -150,7 +147,7 @@ pub fn run(
         illumination,
         mode,
         budget,
-    })
+    }
 }
 
 /// Rounds of [`fit_fills`].
@@ -368,4 +365,118 @@ fn mean_ratio(numerator: &Image, denominator: &Image, mask: &Mask) -> Option<[f3
         }
     }
     Some(sum.map(|s| (s / mask.area() as f64) as f32))
+}
+
+#[cfg(test)]
+mod tests {
+    use image::{DynamicImage, GrayImage};
+
+    use super::*;
+    use crate::decompose::min_mask_area;
+    use crate::pipeline::decompose;
+    use crate::pipeline::params::{Inputs, Masks, Mode};
+    use crate::render::Rasterizer;
+    use crate::synth::blobs_photo;
+
+    #[test]
+    fn a_contained_mask_lands_in_a_higher_group() {
+        let (w, h) = (48, 48);
+        let square = |x0: u32, x1: u32| {
+            GrayImage::from_fn(w, h, |x, y| {
+                image::Luma([if (x0..x1).contains(&x) && (x0..x1).contains(&y) {
+                    255
+                } else {
+                    0
+                }])
+            })
+        };
+        let inputs = Inputs {
+            image: DynamicImage::ImageRgb8(blobs_photo(w, h)),
+            albedo: None,
+            masks: Masks::Binary(vec![square(20, 28), square(4, 44)]),
+        };
+        let params = Params {
+            mode: Mode::Photo,
+            ..Params::default()
+        };
+        let state = run(decompose::run(&inputs, &params), &params, (w, h));
+        let group_of = |area: usize| {
+            state
+                .albedo
+                .groups
+                .iter()
+                .position(|g| g.iter().any(|m| m.mask.area() == area))
+                .unwrap_or_else(|| panic!("no mask of area {area}"))
+        };
+        assert_eq!(group_of(48 * 48), 0, "the full canvas is the bottom group");
+        assert!(group_of(40 * 40) > group_of(48 * 48));
+        assert!(
+            group_of(8 * 8) > group_of(40 * 40),
+            "the inner square sits above the outer one"
+        );
+        // Albedo path 0 is the opaque full-canvas base.
+        let base = &state.scene.albedo.paths[0];
+        assert_eq!(base.opacity, 1.0);
+        assert_eq!(state.albedo.groups[0][0].path, 0);
+    }
+
+    #[test]
+    fn contour_and_douglas_peucker_of_a_disc_render_back_to_the_disc() {
+        let (w, h) = (64usize, 64usize);
+        let disc = Mask::from_fn(w, h, |x, y| {
+            (x as f32 + 0.5 - 30.0).powi(2) + (y as f32 + 0.5 - 33.0).powi(2) <= 20.0f32.powi(2)
+        });
+        let path =
+            path_from_mask(&disc, simplify_tolerance(w, h), [1.0; 3]).expect("a disc gives a path");
+        assert!(
+            path.segment_count() >= 8,
+            "{} segments",
+            path.segment_count()
+        );
+        assert!(
+            path.segment_count() < 60,
+            "simplified: {} segments",
+            path.segment_count()
+        );
+        let closed_ok = path.segment(path.segment_count() - 1)[3] == path.points[0];
+        assert!(closed_ok, "the last segment ends at the start");
+        let mut image = Image::default();
+        Rasterizer::new().render(&[path], [0.0; 3], w, h, &mut image);
+        let (mut inter, mut union) = (0.0f32, 0.0f32);
+        for i in 0..w * h {
+            let (c, d) = (
+                image.data[3 * i],
+                if disc.contains_index(i) { 1.0 } else { 0.0 },
+            );
+            inter += c.min(d);
+            union += c.max(d);
+        }
+        assert!(inter / union >= 0.95, "IoU {}", inter / union);
+    }
+
+    #[test]
+    fn tiny_masks_are_dropped_and_holes_filled() {
+        let (w, h) = (64u32, 64u32);
+        // A ring (hole inside) plus a 2×2 speck far away.
+        let mask = GrayImage::from_fn(w, h, |x, y| {
+            let r2 = (x as i32 - 30).pow(2) + (y as i32 - 30).pow(2);
+            let ring = (100..400).contains(&r2);
+            let speck = x >= 60 && y >= 60 && x < 62 && y < 62;
+            image::Luma([if ring || speck { 255 } else { 0 }])
+        });
+        let inputs = Inputs {
+            image: DynamicImage::ImageRgb8(blobs_photo(w, h)),
+            albedo: None,
+            masks: Masks::Binary(vec![mask]),
+        };
+        let params = Params {
+            mode: Mode::Photo,
+            ..Params::default()
+        };
+        let decomposition = decompose::run(&inputs, &params);
+        assert!(min_mask_area(64, 64) > 4);
+        assert_eq!(decomposition.candidates.len(), 1, "the speck is dropped");
+        let ring = &decomposition.candidates[0].mask;
+        assert!(ring.contains(30, 30), "the hole is filled");
+    }
 }

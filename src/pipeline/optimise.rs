@@ -1,34 +1,37 @@
-//! The optimisation stages after the initialisation, in order:
-//! photo: structure → reconstruct → refine (illumination) → split → polish;
-//! simple: structure → reconstruct → refine (albedo) → polish.
+//! The optimisation stages after the initialisation, as [`super::stage::PHOTO_STAGES`] and
+//! [`super::stage::SIMPLE_STAGES`] order them: photo: structure → reconstruct → refine
+//! (illumination) → split → polish; simple: structure → reconstruct → refine (albedo) → polish.
 //!
 //! The structure stage, the first part of the reconstruction and the first refinement rounds run
 //! on a half-size copy of the scene (see [`super::coarse`]); previews are made at full size.
 
 use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask, rescaled};
-use super::refine::{Growth, RefineSettings, refine};
+use super::init::InitState;
+use super::params::{Error, Params, ResolvedMode};
+use super::polish::{self, PolishSettings};
+use super::refine::{Growth, RefinePlan, RefineSettings, refine};
 use super::split::{SplitReport, split_layers};
-use super::stage::{Canvas, IterationSpan, Stage, StageContext};
+use super::stage::{Canvas, IterationSpan, StageKind, StageRun};
 use super::structure::{
-    MaskGroup, Scratch, StructureSettings, optimise_reconstruction, optimise_structure,
-    preview_two_layers, reconstruction_loss,
+    MaskGroup, Scratch, StructureRun, StructureSettings, optimise_reconstruction,
+    optimise_structure, preview_two_layers, reconstruction_loss,
 };
-use super::{Error, Mode, Params, polish};
 use crate::render::Image;
 use crate::scene::{LayerKind, Scene};
 
-/// Stage names of the optimisation for a resolved mode (`Photo` or `Simple`).
-pub fn stage_names(mode: Mode) -> &'static [&'static str] {
-    match mode {
-        Mode::Simple => &["structure", "reconstruct", "refine", "polish"],
-        _ => &["structure", "reconstruct", "refine", "split", "polish"],
-    }
+/// Settings of every optimisation stage; the defaults are what `covec` runs.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct OptimiseSettings {
+    pub structure: StructureSettings,
+    pub refine: RefineSettings,
+    pub coarse: CoarseSettings,
+    pub polish: PolishSettings,
 }
 
 /// The image loss (MSE against the target) at the start and end of one stage: the two-layer
 /// model `R(A)·R(I)` up to the refinement, the SVG model `clamp01(R(A)·R(S) + R(L))` in the polish.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct StageLoss {
+pub(crate) struct StageLoss {
     pub stage: &'static str,
     pub before: f32,
     pub after: f32,
@@ -36,245 +39,262 @@ pub struct StageLoss {
 
 /// What the optimisation did, for logs and tests.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct OptimiseReport {
+pub(crate) struct OptimiseReport {
     pub losses: Vec<StageLoss>,
     pub split: Option<SplitReport>,
 }
 
-/// Runs the optimisation stages on an initialised scene. In photo mode the illumination layer is
-/// `scene.shade` until the split; in simple mode only the albedo layer is used. `first_stage` is
-/// the run-wide index of the first stage here (stages before it: decompose, init, ...).
-pub fn optimise(
-    scene: &mut Scene,
-    groups: &[MaskGroup],
-    target: &Image,
-    mode: Mode,
-    params: &Params,
-    ctx: &StageContext,
-    first_stage: u32,
-) -> Result<OptimiseReport, Error> {
-    optimise_with(
-        scene,
-        groups,
-        target,
-        mode,
-        params,
-        &CoarseSettings::default(),
-        ctx,
-        first_stage,
-    )
+/// An initialised scene going through the optimisation stages. In photo mode the illumination
+/// layer is `scene.shade` until the split; in simple mode only the albedo layer is used.
+pub(crate) struct Optimisation<'a> {
+    pub scene: Scene,
+    pub report: OptimiseReport,
+    groups: Vec<MaskGroup>,
+    target: Image,
+    /// The target at half size, when the coarse phase applies.
+    small_target: Option<Image>,
+    pub mode: ResolvedMode,
+    params: &'a Params,
+    settings: &'a OptimiseSettings,
+    canvas: Canvas,
+    /// The loss after the last stage run, the next stage's `before`.
+    loss: f32,
 }
 
-/// [`optimise`] with the given coarse-to-fine schedule.
-#[allow(clippy::too_many_arguments)]
-pub fn optimise_with(
-    scene: &mut Scene,
-    groups: &[MaskGroup],
-    target: &Image,
-    mode: Mode,
-    params: &Params,
-    coarse: &CoarseSettings,
-    ctx: &StageContext,
-    first_stage: u32,
-) -> Result<OptimiseReport, Error> {
-    let names = stage_names(mode);
-    let stage = |name: &'static str| Stage {
-        name,
-        index: first_stage + names.iter().position(|&n| n == name).unwrap_or(0) as u32,
-    };
-    let budget = params.paths as usize;
-    if scene.path_count() > budget {
-        return Err(Error::Params(format!(
-            "the initialisation made {} paths, more than the budget of {budget}",
-            scene.path_count()
-        )));
-    }
-    if (target.width, target.height) != (scene.width as usize, scene.height as usize) {
-        return Err(Error::Params("target image and scene sizes differ".into()));
-    }
-    let it = &params.iterations;
-    let structure = StructureSettings::default();
-    let refine_settings = RefineSettings::default();
-    let mut report = OptimiseReport::default();
-    let growth = match mode {
-        Mode::Simple => Growth {
-            layer: LayerKind::Albedo,
-            color_max: 1.0,
-        },
-        _ => Growth {
-            layer: LayerKind::Shade,
-            color_max: structure.illumination_cap,
-        },
-    };
-    let (w, h) = (target.width, target.height);
-    let coarse_applies = coarse.applies(w, h);
-    // Coarse phase: structure, the first part of the reconstruction, the first refinement rounds.
-    let coarse_reconstruction = if coarse_applies {
-        ((it.reconstruction as f32 * coarse.reconstruction_share).round() as u32)
-            .min(it.reconstruction)
-    } else {
-        0
-    };
-    let coarse_rounds = if coarse_applies {
-        it.refine_rounds.saturating_sub(coarse.fine_rounds)
-    } else {
-        0
-    };
-    let (half_w, half_h) = (w.div_ceil(2), h.div_ceil(2));
-    let small_target = coarse_applies.then(|| halve_image(target));
-    let mut canvas = Canvas::new(w, h);
-    let mut scratch = Scratch::default();
-
-    let structure_losses = if let Some(small_target) = &small_target {
-        let mut small = rescaled(scene, 0.5, half_w as u32, half_h as u32);
-        let small_groups: Vec<MaskGroup> = groups
-            .iter()
-            .map(|g| MaskGroup {
-                masks: g.masks.iter().map(halve_mask).collect(),
-                ..g.clone()
-            })
-            .collect();
-        let losses = optimise_structure(
-            &mut small,
-            &small_groups,
-            small_target,
-            it.structure,
-            &structure,
-            params.seed,
-            ctx,
-            stage("structure"),
-        )?;
-        *scene = rescaled(&small, 2.0, w as u32, h as u32);
-        losses
-    } else {
-        optimise_structure(
+impl<'a> Optimisation<'a> {
+    /// Takes over the init stage's scene and mask groups.
+    pub fn new(
+        init: InitState,
+        params: &'a Params,
+        settings: &'a OptimiseSettings,
+    ) -> Result<Self, Error> {
+        let InitState {
             scene,
+            target,
+            albedo,
+            illumination,
+            mode,
+            ..
+        } = init;
+        let groups = MaskGroup::from_init(&[albedo, illumination]);
+        Self::from_parts(scene, groups, target, mode, params, settings)
+    }
+
+    /// Takes over a scene with its structure groups (as the init stage makes them).
+    pub fn from_parts(
+        scene: Scene,
+        groups: Vec<MaskGroup>,
+        target: Image,
+        mode: ResolvedMode,
+        params: &'a Params,
+        settings: &'a OptimiseSettings,
+    ) -> Result<Self, Error> {
+        let budget = params.paths as usize;
+        if scene.path_count() > budget {
+            return Err(Error::Internal(format!(
+                "the initialisation made {} paths, more than the budget of {budget}",
+                scene.path_count()
+            )));
+        }
+        if (target.width, target.height) != (scene.width as usize, scene.height as usize) {
+            return Err(Error::Internal("target image and scene sizes differ".into()));
+        }
+        let (w, h) = (target.width, target.height);
+        Ok(Self {
             groups,
+            small_target: settings.coarse.applies(w, h).then(|| halve_image(&target)),
             target,
-            it.structure,
-            &structure,
-            params.seed,
-            ctx,
-            stage("structure"),
-        )?
-    };
-    let after_structure = preview_two_layers(&mut canvas, scene, target, ctx, stage("structure"));
-    report.losses.push(StageLoss {
-        stage: "structure",
-        before: structure_losses[0],
-        after: after_structure,
-    });
-
-    let reconstruction = |start: u32, count: u32| IterationSpan {
-        start,
-        count,
-        total: it.reconstruction,
-    };
-    if let Some(small_target) = &small_target {
-        let mut small = rescaled(scene, 0.5, half_w as u32, half_h as u32);
-        optimise_reconstruction(
-            &mut small,
-            small_target,
-            reconstruction(0, coarse_reconstruction),
-            &structure,
-            ctx,
-            stage("reconstruct"),
-        )?;
-        *scene = rescaled(&small, 2.0, w as u32, h as u32);
-    }
-    optimise_reconstruction(
-        scene,
-        target,
-        reconstruction(
-            coarse_reconstruction,
-            it.reconstruction - coarse_reconstruction,
-        ),
-        &structure,
-        ctx,
-        stage("reconstruct"),
-    )?;
-    let after_reconstruct = if it.reconstruction > 0 {
-        preview_two_layers(&mut canvas, scene, target, ctx, stage("reconstruct"))
-    } else {
-        reconstruction_loss(&mut canvas, scene, target, &mut scratch, None)
-    };
-    report.losses.push(StageLoss {
-        stage: "reconstruct",
-        before: after_structure,
-        after: after_reconstruct,
-    });
-
-    let rounds = |start: u32, count: u32| IterationSpan {
-        start,
-        count,
-        total: it.refine_rounds,
-    };
-    // Early stopping in the coarse rounds only (see `super::coarse`).
-    let fine_refine = RefineSettings {
-        plateau: PlateauSettings::never(),
-        ..refine_settings.clone()
-    };
-    let refine_stage = |scene: &mut Scene, target: &Image, span: IterationSpan| {
-        let coarse_span = span.start + span.count < span.total;
-        refine(
             scene,
-            target,
-            growth,
-            budget,
-            span,
-            it.refine,
-            if coarse_span {
-                &refine_settings
-            } else {
-                &fine_refine
-            },
-            params.seed,
-            ctx,
-            stage("refine"),
-        )
-    };
-    if let Some(small_target) = &small_target {
-        let mut small = rescaled(scene, 0.5, half_w as u32, half_h as u32);
-        refine_stage(&mut small, small_target, rounds(0, coarse_rounds))?;
-        *scene = rescaled(&small, 2.0, w as u32, h as u32);
+            mode,
+            params,
+            settings,
+            canvas: Canvas::new(w, h),
+            report: OptimiseReport::default(),
+            loss: 0.0,
+        })
     }
-    let [_, after] = refine_stage(
-        scene,
-        target,
-        rounds(coarse_rounds, it.refine_rounds - coarse_rounds),
-    )?;
-    report.losses.push(StageLoss {
-        stage: "refine",
-        before: after_reconstruct,
-        after,
-    });
-    if mode != Mode::Simple {
-        ctx.iteration(stage("split"), 0, 1, None)?;
-        let split = split_layers(scene, target, ctx, stage("split"));
-        ctx.iteration(stage("split"), 1, 1, Some(split.mse_after))?;
-        report.split = Some(split);
-    }
-    let [before, after] = polish::polish(
-        scene,
-        target,
-        it.polish,
-        polish::polish_settings(),
-        ctx,
-        stage("polish"),
-    )?;
-    report.losses.push(StageLoss {
-        stage: "polish",
-        before,
-        after,
-    });
-    Ok(report)
-}
 
-/// Keeps the albedo layer's first path, the opaque full-canvas base, in place and opaque:
-/// browsers must see an opaque backdrop under the blend groups. Its colour stays trainable.
-pub(crate) fn hold_albedo_base(grads: &mut [crate::render::PathGrad]) {
-    if let Some(base) = grads.first_mut() {
-        base.points.iter_mut().for_each(|p| *p = Default::default());
-        base.opacity = 0.0;
+    /// Runs one optimisation stage.
+    pub fn run_stage(&mut self, kind: StageKind, stage: &StageRun) -> Result<(), Error> {
+        match kind {
+            StageKind::Structure => self.structure(stage),
+            StageKind::Reconstruct => self.reconstruct(stage),
+            StageKind::Refine => self.refine(stage),
+            StageKind::Split => self.split(stage),
+            StageKind::Polish => self.polish(stage),
+            StageKind::Decompose | StageKind::Init => Err(Error::Internal(format!(
+                "the {} stage runs before the optimisation",
+                stage.name()
+            ))),
+        }
+    }
+
+    /// Runs `f` on a half-size copy of the scene (against the half-size target) and scales the
+    /// result back.
+    fn coarse<T>(
+        &mut self,
+        f: impl FnOnce(&mut Scene, &Image) -> Result<T, Error>,
+    ) -> Result<Option<T>, Error> {
+        let Some(small_target) = &self.small_target else {
+            return Ok(None);
+        };
+        let (w, h) = (self.target.width as u32, self.target.height as u32);
+        let mut small = rescaled(&self.scene, 0.5, w.div_ceil(2), h.div_ceil(2));
+        let out = f(&mut small, small_target)?;
+        self.scene = rescaled(&small, 2.0, w, h);
+        Ok(Some(out))
+    }
+
+    fn record(&mut self, stage: &StageRun, before: f32, after: f32) {
+        self.report.losses.push(StageLoss {
+            stage: stage.name(),
+            before,
+            after,
+        });
+        self.loss = after;
+    }
+
+    fn structure(&mut self, stage: &StageRun) -> Result<(), Error> {
+        let run = StructureRun {
+            iterations: self.params.iterations.structure,
+            settings: &self.settings.structure,
+            seed: self.params.seed,
+        };
+        let groups = std::mem::take(&mut self.groups);
+        let coarse = self.coarse(|small, small_target| {
+            let small_groups: Vec<MaskGroup> = groups
+                .iter()
+                .map(|g| MaskGroup {
+                    masks: g.masks.iter().map(halve_mask).collect(),
+                    ..g.clone()
+                })
+                .collect();
+            optimise_structure(small, &small_groups, small_target, &run, stage)
+        });
+        let losses = match coarse {
+            Ok(Some(losses)) => Ok(losses),
+            Ok(None) => optimise_structure(&mut self.scene, &groups, &self.target, &run, stage),
+            Err(error) => Err(error),
+        };
+        self.groups = groups;
+        let losses = losses?;
+        let after = preview_two_layers(&mut self.canvas, &self.scene, &self.target, stage);
+        self.record(stage, losses[0], after);
+        Ok(())
+    }
+
+    fn reconstruct(&mut self, stage: &StageRun) -> Result<(), Error> {
+        let total = self.params.iterations.reconstruction;
+        let coarse_count = if self.small_target.is_some() {
+            ((total as f32 * self.settings.coarse.reconstruction_share).round() as u32).min(total)
+        } else {
+            0
+        };
+        let settings = &self.settings.structure;
+        self.coarse(|small, small_target| {
+            optimise_reconstruction(
+                small,
+                small_target,
+                IterationSpan {
+                    start: 0,
+                    count: coarse_count,
+                    total,
+                },
+                settings,
+                stage,
+            )
+        })?;
+        optimise_reconstruction(
+            &mut self.scene,
+            &self.target,
+            IterationSpan {
+                start: coarse_count,
+                count: total - coarse_count,
+                total,
+            },
+            settings,
+            stage,
+        )?;
+        let after = if total > 0 {
+            preview_two_layers(&mut self.canvas, &self.scene, &self.target, stage)
+        } else {
+            let mut scratch = Scratch::default();
+            reconstruction_loss(
+                &mut self.canvas,
+                &self.scene,
+                &self.target,
+                &mut scratch,
+                None,
+            )
+        };
+        self.record(stage, self.loss, after);
+        Ok(())
+    }
+
+    fn refine(&mut self, stage: &StageRun) -> Result<(), Error> {
+        let it = &self.params.iterations;
+        let growth = match self.mode {
+            ResolvedMode::Simple => Growth {
+                layer: LayerKind::Albedo,
+                color_max: 1.0,
+            },
+            ResolvedMode::Photo => Growth {
+                layer: LayerKind::Shade,
+                color_max: self.settings.structure.illumination_cap,
+            },
+        };
+        let coarse_rounds = if self.small_target.is_some() {
+            it.refine_rounds
+                .saturating_sub(self.settings.coarse.fine_rounds)
+        } else {
+            0
+        };
+        // Early stopping in the coarse rounds only (see `super::coarse`).
+        let fine_settings = RefineSettings {
+            plateau: PlateauSettings::never(),
+            ..self.settings.refine.clone()
+        };
+        let plan = |start: u32, count: u32, settings| RefinePlan {
+            growth,
+            budget: self.params.paths as usize,
+            rounds: IterationSpan {
+                start,
+                count,
+                total: it.refine_rounds,
+            },
+            iterations: it.refine,
+            settings,
+            seed: self.params.seed,
+        };
+        let coarse_plan = plan(0, coarse_rounds, &self.settings.refine);
+        self.coarse(|small, small_target| refine(small, small_target, &coarse_plan, stage))?;
+        let fine_plan = plan(
+            coarse_rounds,
+            it.refine_rounds - coarse_rounds,
+            &fine_settings,
+        );
+        let [_, after] = refine(&mut self.scene, &self.target, &fine_plan, stage)?;
+        self.record(stage, self.loss, after);
+        Ok(())
+    }
+
+    fn split(&mut self, stage: &StageRun) -> Result<(), Error> {
+        stage.iteration(0, 1, None)?;
+        let split = split_layers(&mut self.scene, &self.target, stage);
+        stage.iteration(1, 1, Some(split.mse_after))?;
+        self.report.split = Some(split);
+        Ok(())
+    }
+
+    fn polish(&mut self, stage: &StageRun) -> Result<(), Error> {
+        let [before, after] = polish::polish(
+            &mut self.scene,
+            &self.target,
+            self.params.iterations.polish,
+            &self.settings.polish,
+            stage,
+        )?;
+        self.record(stage, before, after);
+        Ok(())
     }
 }

@@ -2,35 +2,46 @@
 //! model a browser shows, `clamp01(R(A)·R(S) + R(L))`, with every value in its SVG range, so the
 //! file is optimal for what is displayed rather than for the unclamped two-layer model.
 
-use super::Error;
 use super::coarse::{Plateau, PlateauSettings};
-use super::stage::{Canvas, Stage, StageContext};
+use super::params::Error;
+use super::stage::{Canvas, StageRun, hold_albedo_base};
 use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
-use crate::pipeline::optimise::hold_albedo_base;
 use crate::render::Image;
 use crate::render::composite::{svg_model, svg_model_backward};
 use crate::scene::{LayerKind, Scene};
 
-/// Adam of the polish: half the paper's rates, since the layers are already close.
-pub fn polish_settings() -> AdamSettings {
-    AdamSettings::default().scaled(0.5)
+/// Settings of the polish.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct PolishSettings {
+    /// Default: half the paper's rates, since the layers are already close.
+    pub adam: AdamSettings,
+    /// When the polish stops early.
+    pub plateau: PlateauSettings,
 }
 
-/// Runs `iterations` joint steps and returns the MSE of the SVG model before and after.
-pub fn polish(
+impl Default for PolishSettings {
+    fn default() -> Self {
+        Self {
+            adam: AdamSettings::default().scaled(0.5),
+            plateau: PlateauSettings::default(),
+        }
+    }
+}
+
+/// Runs up to `iterations` joint steps and returns the MSE of the SVG model before and after.
+pub(crate) fn polish(
     scene: &mut Scene,
     target: &Image,
     iterations: u32,
-    settings: AdamSettings,
-    ctx: &StageContext,
-    stage: Stage,
+    settings: &PolishSettings,
+    stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let mut adams: Vec<Adam> = LayerKind::ALL
         .iter()
-        .map(|_| Adam::new(settings, Bounds::canvas(w, h, 1.0)))
+        .map(|_| Adam::new(settings.adam, Bounds::canvas(w, h, 1.0)))
         .collect();
     // Files hold [0, 1] values: bring any illumination colour into range first.
     for kind in LayerKind::ALL {
@@ -51,7 +62,7 @@ pub fn polish(
         &mut d_composite,
     );
     let mut loss = initial;
-    let mut plateau = Plateau::new(PlateauSettings::default());
+    let mut plateau = Plateau::new(settings.plateau);
     for it in 0..iterations {
         if plateau.stop_after(loss) {
             break;
@@ -85,11 +96,11 @@ pub fn polish(
             &mut composite,
             &mut d_composite,
         );
-        ctx.iteration(stage, it + 1, iterations, Some(loss))?;
+        stage.iteration(it + 1, iterations, Some(loss))?;
     }
-    ctx.preview(stage, "composite", &composite);
+    stage.preview("composite", &composite);
     for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
-        ctx.preview(stage, kind.name(), &layers[k]);
+        stage.preview(kind.name(), &layers[k]);
     }
     Ok([initial, loss])
 }

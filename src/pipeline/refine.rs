@@ -5,10 +5,10 @@
 //! The photo mode refines the illumination layer (`scene.shade`, multiplied onto the fixed
 //! albedo); the simple mode refines the albedo layer itself (the illumination is empty, i.e. 1).
 
-use super::Error;
 use super::coarse::{Plateau, PlateauSettings};
+use super::params::Error;
 use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, high_error_regions};
-use super::stage::{Canvas, IterationSpan, Stage, StageContext};
+use super::stage::{Canvas, IterationSpan, StageRun};
 use crate::optim::loss::mse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
@@ -59,23 +59,37 @@ pub struct Growth {
     pub color_max: f32,
 }
 
-/// Runs the span's rounds (of `rounds.total`, each of up to `iterations`, stopping early once the
-/// loss has plateaued) and returns the reconstruction loss ‖I − R(A)·R(I)‖² before and after.
-/// After the last of all rounds `scene.path_count() == budget` unless the scene already held
-/// more; only then are previews made.
-#[allow(clippy::too_many_arguments)]
-pub fn refine(
+/// One call of [`refine`]: which rounds, how, into which layer.
+pub(crate) struct RefinePlan<'a> {
+    pub growth: Growth,
+    /// Paths the scene may hold in the end.
+    pub budget: usize,
+    /// The rounds to run, of all rounds of the stage.
+    pub rounds: IterationSpan,
+    /// Iterations per round.
+    pub iterations: u32,
+    pub settings: &'a RefineSettings,
+    pub seed: u64,
+}
+
+/// Runs the plan's rounds (each of up to `iterations`, stopping early once the loss has
+/// plateaued) and returns the reconstruction loss ‖I − R(A)·R(I)‖² before and after. After the
+/// last of all rounds `scene.path_count() == budget` unless the scene already held more; only
+/// then are previews made.
+pub(crate) fn refine(
     scene: &mut Scene,
     target: &Image,
-    growth: Growth,
-    budget: usize,
-    rounds: IterationSpan,
-    iterations: u32,
-    settings: &RefineSettings,
-    seed: u64,
-    ctx: &StageContext,
-    stage: Stage,
+    plan: &RefinePlan,
+    stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
+    let RefinePlan {
+        growth,
+        budget,
+        rounds,
+        iterations,
+        settings,
+        seed,
+    } = *plan;
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let mut rng = Rng::new(seed, 0x5245_4649);
@@ -132,27 +146,22 @@ pub fn refine(
         }
 
         let base_iteration = round * iterations;
-        train(
-            &mut canvas,
-            &mut new_paths,
-            &frozen,
-            &factor,
-            target,
+        let schedule = Schedule {
             iterations,
             settings,
             bounds,
-            |it, loss| ctx.iteration(stage, base_iteration + it, total_iterations, Some(loss)),
-        )?;
+        };
+        let frame = Frame {
+            backdrop: &frozen,
+            factor: &factor,
+            target,
+        };
+        train(&mut canvas, &mut new_paths, &frame, &schedule, |it, loss| {
+            stage.iteration(base_iteration + it, total_iterations, Some(loss))
+        })?;
 
         if !last {
-            prune(
-                &mut canvas,
-                &mut new_paths,
-                &frozen,
-                &factor,
-                settings,
-                w * h,
-            );
+            prune(&mut canvas, &mut new_paths, &frame, settings);
             let merged = merge(&mut canvas, &mut new_paths, settings);
             if merged > 0 {
                 // Train only the merged paths (on top), over everything else.
@@ -161,17 +170,17 @@ pub fn refine(
                 canvas.render_over(&new_paths[..keep], &frozen, &mut below);
                 let mut merged_paths = new_paths.split_off(keep);
                 let report = base_iteration + iterations;
-                train(
-                    &mut canvas,
-                    &mut merged_paths,
-                    &below,
-                    &factor,
-                    target,
-                    iterations / 2,
-                    settings,
-                    bounds,
-                    |_, loss| ctx.iteration(stage, report, total_iterations, Some(loss)),
-                )?;
+                let frame = Frame {
+                    backdrop: &below,
+                    ..frame
+                };
+                let schedule = Schedule {
+                    iterations: iterations / 2,
+                    ..schedule
+                };
+                train(&mut canvas, &mut merged_paths, &frame, &schedule, |_, loss| {
+                    stage.iteration(report, total_iterations, Some(loss))
+                })?;
                 new_paths.extend(merged_paths);
             }
         }
@@ -181,12 +190,11 @@ pub fn refine(
     canvas.render_layer(scene, growth.layer, &mut grown);
     product(&grown, &factor, &mut composite);
     let loss = crate::optim::loss::mse_value(&composite, target);
-    if rounds.start + rounds.count < rounds.total {
+    if rounds.ends_early() {
         return Ok([initial, loss]);
     }
-    ctx.preview(stage, "composite", &composite);
-    ctx.preview(
-        stage,
+    stage.preview("composite", &composite);
+    stage.preview(
         if growth.layer == LayerKind::Albedo {
             "albedo"
         } else {
@@ -197,26 +205,43 @@ pub fn refine(
     Ok([initial, loss])
 }
 
-/// Trains `paths`, painted over `backdrop` and multiplied by `factor`, against `target`.
-#[allow(clippy::too_many_arguments)]
+/// What new paths are trained in: painted over `backdrop` (the frozen paths below them),
+/// multiplied by `factor` (the other layer), compared with `target`.
+#[derive(Clone, Copy)]
+struct Frame<'a> {
+    backdrop: &'a Image,
+    factor: &'a Image,
+    target: &'a Image,
+}
+
+/// How long and how new paths are trained.
+#[derive(Clone, Copy)]
+struct Schedule<'a> {
+    iterations: u32,
+    settings: &'a RefineSettings,
+    bounds: Bounds,
+}
+
+/// Trains `paths` in `frame`.
 fn train(
     canvas: &mut Canvas,
     paths: &mut [Path],
-    backdrop: &Image,
-    factor: &Image,
-    target: &Image,
-    iterations: u32,
-    settings: &RefineSettings,
-    bounds: Bounds,
+    frame: &Frame,
+    schedule: &Schedule,
     mut report: impl FnMut(u32, f32) -> Result<(), Error>,
 ) -> Result<(), Error> {
-    let mut adam = Adam::new(settings.adam, bounds);
-    let mut plateau = Plateau::new(settings.plateau);
+    let Frame {
+        backdrop,
+        factor,
+        target,
+    } = *frame;
+    let mut adam = Adam::new(schedule.settings.adam, schedule.bounds);
+    let mut plateau = Plateau::new(schedule.settings.plateau);
     let (mut layer, mut composite, mut d_composite) =
         (Image::default(), Image::default(), Image::default());
     let (mut d_layer, mut d_factor) = (Image::default(), Image::default());
     let mut grads = Vec::new();
-    for it in 0..iterations {
+    for it in 0..schedule.iterations {
         canvas.render_over(paths, backdrop, &mut layer);
         product(&layer, factor, &mut composite);
         let loss = mse(&composite, target, &mut d_composite);
@@ -291,17 +316,12 @@ fn random_path(
 
 /// Removes (all at once) every new path whose removal changes the composite by at most the prune
 /// threshold (Σ |Δ| over pixels × channels, scaled from 512² to `pixels`).
-fn prune(
-    canvas: &mut Canvas,
-    paths: &mut Vec<Path>,
-    backdrop: &Image,
-    factor: &Image,
-    settings: &RefineSettings,
-    pixels: usize,
-) {
+fn prune(canvas: &mut Canvas, paths: &mut Vec<Path>, frame: &Frame, settings: &RefineSettings) {
     if paths.is_empty() {
         return;
     }
+    let (backdrop, factor) = (frame.backdrop, frame.factor);
+    let pixels = factor.width * factor.height;
     let threshold = settings.prune_threshold * pixels as f32 / (512.0 * 512.0);
     let (mut full, mut without) = (Image::default(), Image::default());
     canvas.render_over(paths, backdrop, &mut full);

@@ -2,7 +2,7 @@
 //! shade paths (max colour ≤ 1, kept as they are) and light paths (max colour > 1), which keep
 //! their shapes, get opacity 1 and the mean of the residual `I − R(A)·R(S)` over their area.
 
-use super::stage::{Canvas, Stage, StageContext};
+use super::stage::{Canvas, StageRun};
 use crate::optim::loss::mse_value;
 use crate::render::Image;
 use crate::render::composite::{product, svg_model};
@@ -21,11 +21,10 @@ pub struct SplitReport {
 }
 
 /// Splits the illumination layer in place (paper rule, no tolerance).
-pub fn split_layers(
+pub(crate) fn split_layers(
     scene: &mut Scene,
     target: &Image,
-    ctx: &StageContext,
-    stage: Stage,
+    stage: &StageRun,
 ) -> SplitReport {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
@@ -86,10 +85,10 @@ pub fn split_layers(
         .map(|(a, b)| (a - b).abs())
         .sum::<f32>()
         / after.data.len().max(1) as f32;
-    ctx.preview(stage, "composite", &after);
-    ctx.preview(stage, "albedo", &albedo);
-    ctx.preview(stage, "shade", &shaded);
-    ctx.preview(stage, "light", &light);
+    stage.preview("composite", &after);
+    stage.preview("albedo", &albedo);
+    stage.preview("shade", &shaded);
+    stage.preview("light", &light);
     SplitReport {
         shade_paths: scene.shade.paths.len(),
         light_paths: scene.light.paths.len(),

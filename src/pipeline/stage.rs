@@ -1,29 +1,245 @@
-//! What every optimisation stage shares: progress and cancellation ([`StageContext`]) and
-//! rendering helpers over the rasteriser ([`Canvas`]).
+//! What every stage shares: the stage lists ([`PHOTO_STAGES`], [`SIMPLE_STAGES`]), which drive
+//! running, progress counting and preview names; progress, previews and cancellation
+//! ([`RunContext`], [`StageRun`]); and rendering helpers over the rasteriser ([`Canvas`]).
 
+use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use super::{Error, Observer, Progress};
+use super::params::{Error, Iterations, Mode, Observer, Progress, ResolvedMode};
 use crate::optim::loss::resize_like;
 use crate::render::{Image, PathGrad, Rasterizer};
 use crate::scene::{LayerKind, Path, Scene};
 
-/// Progress, previews and cancellation for the stages of one run.
-pub struct StageContext<'a> {
-    pub observer: &'a dyn Observer,
-    pub cancel: &'a AtomicBool,
-    /// When the run started; progress reports time elapsed since.
-    pub started: Instant,
-    /// Number of stages in the whole run, for `Progress::stage_count`.
-    pub stage_count: u32,
+/// What a stage does; [`super::run`] dispatches on it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StageKind {
+    /// Working-size target, albedo map and candidate masks; `auto` resolved.
+    Decompose,
+    /// Masks to organised groups of closed paths with flat fills.
+    Init,
+    /// Structure loss on the albedo and illumination layers.
+    Structure,
+    /// Reconstruction loss ‖I − R(A)·R(I)‖² on both layers.
+    Reconstruct,
+    /// New paths where the error is high, in rounds.
+    Refine,
+    /// Illumination into shade and light (paper Appendix C).
+    Split,
+    /// All layers under the SVG model.
+    Polish,
 }
 
-/// One stage's name and 0-based index within the run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Stage {
+/// One stage of a run.
+#[derive(Clone, Copy, Debug)]
+pub struct StageSpec {
+    /// What it does.
+    pub kind: StageKind,
+    /// Its name in progress reports and preview names.
     pub name: &'static str,
-    pub index: u32,
+    /// The layers it changes.
+    pub layers: &'static [LayerKind],
+    /// Its iteration count under the given settings (0: a single step).
+    pub iterations: fn(&Iterations) -> u64,
+}
+
+const NONE: fn(&Iterations) -> u64 = |_| 0;
+const ALL_LAYERS: &[LayerKind] = &LayerKind::ALL;
+const TWO_LAYERS: &[LayerKind] = &[LayerKind::Albedo, LayerKind::Shade];
+const ALBEDO: &[LayerKind] = &[LayerKind::Albedo];
+const ILLUMINATION: &[LayerKind] = &[LayerKind::Shade];
+
+const DECOMPOSE: StageSpec = StageSpec {
+    kind: StageKind::Decompose,
+    name: "decompose",
+    layers: &[],
+    iterations: NONE,
+};
+const STRUCTURE: StageSpec = StageSpec {
+    kind: StageKind::Structure,
+    name: "structure",
+    layers: TWO_LAYERS,
+    iterations: |it| u64::from(it.structure),
+};
+const RECONSTRUCT: StageSpec = StageSpec {
+    kind: StageKind::Reconstruct,
+    name: "reconstruct",
+    layers: TWO_LAYERS,
+    iterations: |it| u64::from(it.reconstruction),
+};
+const POLISH: StageSpec = StageSpec {
+    kind: StageKind::Polish,
+    name: "polish",
+    layers: ALL_LAYERS,
+    iterations: |it| u64::from(it.polish),
+};
+
+/// The photo-mode run (the paper's method). Until the split, the illumination layer lives in
+/// `Scene::shade`.
+pub const PHOTO_STAGES: &[StageSpec] = &[
+    DECOMPOSE,
+    StageSpec {
+        kind: StageKind::Init,
+        name: "init",
+        layers: TWO_LAYERS,
+        iterations: NONE,
+    },
+    STRUCTURE,
+    RECONSTRUCT,
+    StageSpec {
+        kind: StageKind::Refine,
+        name: "refine",
+        layers: ILLUMINATION,
+        iterations: |it| u64::from(it.refine_rounds) * u64::from(it.refine),
+    },
+    StageSpec {
+        kind: StageKind::Split,
+        name: "split",
+        layers: &[LayerKind::Shade, LayerKind::Light],
+        iterations: NONE,
+    },
+    POLISH,
+];
+
+/// The simple-mode run (paper Appendix C.2): albedo only.
+pub const SIMPLE_STAGES: &[StageSpec] = &[
+    DECOMPOSE,
+    StageSpec {
+        kind: StageKind::Init,
+        name: "init",
+        layers: ALBEDO,
+        iterations: NONE,
+    },
+    STRUCTURE,
+    RECONSTRUCT,
+    StageSpec {
+        kind: StageKind::Refine,
+        name: "refine",
+        layers: ALBEDO,
+        iterations: |it| u64::from(it.refine_rounds) * u64::from(it.refine),
+    },
+    POLISH,
+];
+
+impl ResolvedMode {
+    /// The stages this mode runs, in order.
+    pub fn stages(self) -> &'static [StageSpec] {
+        match self {
+            ResolvedMode::Photo => PHOTO_STAGES,
+            ResolvedMode::Simple => SIMPLE_STAGES,
+        }
+    }
+}
+
+/// The stages of a run that was asked for `mode`, as far as known before the decompose stage
+/// resolves `auto` (counted as photo until then; the stages before the resolution are the same
+/// in both lists).
+pub(crate) fn provisional_stages(mode: Mode) -> &'static [StageSpec] {
+    match mode {
+        Mode::Simple => SIMPLE_STAGES,
+        Mode::Auto | Mode::Photo => PHOTO_STAGES,
+    }
+}
+
+/// Progress, previews and cancellation for one run.
+pub(crate) struct RunContext<'a> {
+    observer: &'a dyn Observer,
+    cancel: &'a AtomicBool,
+    /// When the run started; progress reports time elapsed since.
+    started: Instant,
+    /// The run's stages; replaced once when `auto` is resolved.
+    stages: Cell<&'static [StageSpec]>,
+}
+
+impl<'a> RunContext<'a> {
+    pub fn new(
+        observer: &'a dyn Observer,
+        cancel: &'a AtomicBool,
+        stages: &'static [StageSpec],
+    ) -> Self {
+        Self {
+            observer,
+            cancel,
+            started: Instant::now(),
+            stages: Cell::new(stages),
+        }
+    }
+
+    /// The stages as known so far.
+    pub fn stages(&self) -> &'static [StageSpec] {
+        self.stages.get()
+    }
+
+    /// Replaces the stage list once the mode is known; stages done keep their indices.
+    pub fn set_stages(&self, stages: &'static [StageSpec]) {
+        self.stages.set(stages);
+    }
+
+    /// Stage `index` of the list, unless the run was canceled.
+    pub fn stage(&self, index: usize) -> Result<StageRun<'_>, Error> {
+        self.check_cancel()?;
+        let spec = self.stages().get(index).ok_or_else(|| {
+            Error::Internal(format!("stage {index} is past the end of the stage list"))
+        })?;
+        Ok(StageRun {
+            run: self,
+            spec,
+            index: index as u32,
+        })
+    }
+
+    fn check_cancel(&self) -> Result<(), Error> {
+        if self.cancel.load(Ordering::Relaxed) {
+            Err(Error::Canceled)
+        } else {
+            Ok(())
+        }
+    }
+}
+
+/// One running stage: what it reports goes out under its name and index.
+#[derive(Clone, Copy)]
+pub(crate) struct StageRun<'a> {
+    run: &'a RunContext<'a>,
+    spec: &'static StageSpec,
+    index: u32,
+}
+
+impl StageRun<'_> {
+    /// The stage's name.
+    pub fn name(&self) -> &'static str {
+        self.spec.name
+    }
+
+    /// Reports `iteration` of `iterations` and returns `Err(Canceled)` if the run was canceled.
+    pub fn iteration(&self, iteration: u32, iterations: u32, loss: Option<f32>) -> Result<(), Error> {
+        self.run.observer.progress(&Progress {
+            stage: self.spec.name,
+            stage_index: self.index,
+            stage_count: self.run.stages().len() as u32,
+            iteration,
+            iterations,
+            loss,
+            elapsed: self.run.started.elapsed(),
+        });
+        self.run.check_cancel()
+    }
+
+    pub fn check_cancel(&self) -> Result<(), Error> {
+        self.run.check_cancel()
+    }
+
+    /// Hands a stage-end preview named `NN-stage-what` to the observer.
+    pub fn preview(&self, what: &str, image: &Image) {
+        self.preview_as(&format!("{}-{what}", self.spec.name), image);
+    }
+
+    /// Hands a preview named `NN-what` to the observer (inputs, masks).
+    pub fn preview_as(&self, what: &str, image: &Image) {
+        self.run
+            .observer
+            .preview(&format!("{:02}-{what}", self.index), image);
+    }
 }
 
 /// Iterations (or rounds) `start..start + count` of a loop of `total`: a stage split into a
@@ -44,43 +260,19 @@ impl IterationSpan {
             total,
         }
     }
+
+    /// Whether the span ends before the loop does (a coarse part).
+    pub fn ends_early(&self) -> bool {
+        self.start + self.count < self.total
+    }
 }
 
-impl StageContext<'_> {
-    /// Reports one iteration and returns `Err(Canceled)` if the run was canceled.
-    pub fn iteration(
-        &self,
-        stage: Stage,
-        iteration: u32,
-        iterations: u32,
-        loss: Option<f32>,
-    ) -> Result<(), Error> {
-        self.observer.progress(&Progress {
-            stage: stage.name,
-            stage_index: stage.index,
-            stage_count: self.stage_count,
-            iteration,
-            iterations,
-            loss,
-            elapsed: self.started.elapsed(),
-        });
-        self.check_cancel()
-    }
-
-    pub fn check_cancel(&self) -> Result<(), Error> {
-        if self.cancel.load(Ordering::Relaxed) {
-            Err(Error::Canceled)
-        } else {
-            Ok(())
-        }
-    }
-
-    /// Hands a stage-end preview named `NN-stage-what` to the observer.
-    pub fn preview(&self, stage: Stage, what: &str, image: &Image) {
-        self.observer.preview(
-            &format!("{:02}-{}-{}", stage.index, stage.name, what),
-            image,
-        );
+/// Keeps the albedo layer's first path, the opaque full-canvas base, in place and opaque:
+/// browsers must see an opaque backdrop under the blend groups. Its colour stays trainable.
+pub(crate) fn hold_albedo_base(grads: &mut [PathGrad]) {
+    if let Some(base) = grads.first_mut() {
+        base.points.iter_mut().for_each(|p| *p = Default::default());
+        base.opacity = 0.0;
     }
 }
 

@@ -5,15 +5,14 @@
 //! white and multiplied onto the albedo); its colours may exceed 1 up to
 //! [`StructureSettings::illumination_cap`].
 
-use super::Error;
 use super::coarse::{Plateau, PlateauSettings};
 use super::init::LayerGroups;
-use super::stage::{Canvas, IterationSpan, Stage, StageContext};
+use super::params::Error;
+use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo_base};
 use crate::decompose::mask::Mask;
 use crate::optim::loss::{mse, overlap_penalty};
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
-use crate::pipeline::optimise::hold_albedo_base;
 use crate::render::composite::{product, product_backward};
 use crate::render::{Image, PathGrad};
 use crate::scene::{LayerKind, Path, Scene};
@@ -81,20 +80,29 @@ impl Default for StructureSettings {
 /// Grey translucent fill used to measure overlap within a group (LayerVec: black at alpha 0.3).
 const OVERLAP_OPACITY: f32 = 0.3;
 
-/// Runs `iterations` of the structure loss on the albedo and illumination (`scene.shade`)
-/// layers, one Adam per layer (geometry and opacity only). Returns the reconstruction loss
-/// ‖I − R(A)·R(I)‖² before and after.
-#[allow(clippy::too_many_arguments)]
-pub fn optimise_structure(
+/// How the structure stage runs.
+pub(crate) struct StructureRun<'a> {
+    pub iterations: u32,
+    pub settings: &'a StructureSettings,
+    /// Seed of the groups' fixed random colours.
+    pub seed: u64,
+}
+
+/// Runs the structure loss on the albedo and illumination (`scene.shade`) layers, one Adam per
+/// layer (geometry and opacity only). Returns the reconstruction loss ‖I − R(A)·R(I)‖² before
+/// and after.
+pub(crate) fn optimise_structure(
     scene: &mut Scene,
     groups: &[MaskGroup],
     target: &Image,
-    iterations: u32,
-    settings: &StructureSettings,
-    seed: u64,
-    ctx: &StageContext,
-    stage: Stage,
+    run: &StructureRun,
+    stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
+    let StructureRun {
+        iterations,
+        settings,
+        seed,
+    } = *run;
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let mut scratch = Scratch::default();
@@ -128,7 +136,7 @@ pub fn optimise_structure(
             }
             adam.step(paths, grads);
         }
-        ctx.iteration(stage, it + 1, iterations, Some(loss))?;
+        stage.iteration(it + 1, iterations, Some(loss))?;
     }
     let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
     Ok([initial, after])
@@ -137,13 +145,12 @@ pub fn optimise_structure(
 /// Runs the span's iterations of the shared reconstruction loss ‖I − R(A)·R(I)‖² on both
 /// layers, one Adam per layer, stopping early once the loss has plateaued. Returns the loss
 /// before and after.
-pub fn optimise_reconstruction(
+pub(crate) fn optimise_reconstruction(
     scene: &mut Scene,
     target: &Image,
     span: IterationSpan,
     settings: &StructureSettings,
-    ctx: &StageContext,
-    stage: Stage,
+    stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
@@ -168,7 +175,7 @@ pub fn optimise_reconstruction(
         hold_albedo_base(&mut grads_a);
         adam_albedo.step(&mut scene.albedo.paths, &grads_a);
         adam_illum.step(&mut scene.shade.paths, &grads_i);
-        ctx.iteration(stage, span.start + it + 1, span.total, Some(loss))?;
+        stage.iteration(span.start + it + 1, span.total, Some(loss))?;
     }
     let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
     Ok([initial, after])
@@ -228,14 +235,13 @@ pub(crate) fn preview_two_layers(
     canvas: &mut Canvas,
     scene: &Scene,
     target: &Image,
-    ctx: &StageContext,
-    stage: Stage,
+    stage: &StageRun,
 ) -> f32 {
     let mut s = Scratch::default();
     let loss = reconstruction_loss(canvas, scene, target, &mut s, None);
-    ctx.preview(stage, "composite", &s.c);
-    ctx.preview(stage, "albedo", &s.a);
-    ctx.preview(stage, "illumination", &s.b);
+    stage.preview("composite", &s.c);
+    stage.preview("albedo", &s.a);
+    stage.preview("illumination", &s.b);
     loss
 }
 
@@ -259,18 +265,18 @@ fn prepare_groups(
     for group in groups {
         let layer_len = scene.layer(group.layer).paths.len();
         if group.paths.len() != group.masks.len() {
-            return Err(Error::Params("a mask group needs one mask per path".into()));
+            return Err(Error::Internal("a mask group needs one mask per path".into()));
         }
         let mut target = Image::filled(w, h, [0.0; 3]);
         let mut colors = Vec::with_capacity(group.paths.len());
         for (&index, mask) in group.paths.iter().zip(&group.masks) {
             if index >= layer_len {
-                return Err(Error::Params(format!(
+                return Err(Error::Internal(format!(
                     "mask group refers to missing path {index}"
                 )));
             }
             if mask.width() != w || mask.height() != h {
-                return Err(Error::Params(
+                return Err(Error::Internal(
                     "mask size differs from the working size".into(),
                 ));
             }

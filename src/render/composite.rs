@@ -4,11 +4,14 @@
 //! - [`svg_model`]: `clamp01(A · S + L)`, exactly what a browser shows for the albedo layer, a
 //!   `mix-blend-mode: multiply` shade group and a `plus-lighter` light group (all in sRGB values,
 //!   no gamma), so the final polish optimises what users see.
+//! - [`render_layers`], [`composite`]: a whole scene rendered as shown, for previews and
+//!   measurements.
 //!
 //! # Panics
 //! Every function here panics if its images differ in size (a programming error).
 
-use super::Image;
+use super::{Image, Rasterizer};
+use crate::scene::{LayerKind, Scene};
 
 /// Upper bound for illumination colours during optimisation: the product model lets shading
 /// brighten albedo up to 4× (highlights over dark albedo estimates). The optimiser projects
@@ -83,4 +86,28 @@ pub fn svg_model_backward(
         d_s.data[i] = g * a.data[i];
         d_l.data[i] = g;
     }
+}
+
+/// Each layer of `scene` rendered over its base colour (white, white, black), in
+/// [`LayerKind::ALL`] order.
+pub fn render_layers(scene: &Scene) -> [Image; 3] {
+    let mut rasterizer = Rasterizer::new();
+    LayerKind::ALL.map(|kind| {
+        let mut image = Image::default();
+        let (w, h) = (scene.width as usize, scene.height as usize);
+        rasterizer.render(&scene.layer(kind).paths, kind.base(), w, h, &mut image);
+        image
+    })
+}
+
+/// [`svg_model`] of three rendered layers.
+pub fn composite_layers([albedo, shade, light]: &[Image; 3]) -> Image {
+    let mut out = Image::default();
+    svg_model(albedo, shade, light, &mut out);
+    out
+}
+
+/// The scene as a browser shows it: its three layers rendered and composited.
+pub fn composite(scene: &Scene) -> Image {
+    composite_layers(&render_layers(scene))
 }

@@ -13,12 +13,13 @@ use serde::{Deserialize, Serialize};
 use super::auth::Owner;
 use super::error::ApiError;
 use super::jobs::find;
-use super::results::{SVG, artefact, require_success};
+use super::results::{artefact, require_success, scene_file};
 use super::{AppState, Endpoint, endpoint};
-use crate::decompose::resize_rgb;
 use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
+use crate::imageio::{self, resize_rgb};
+use crate::output::{self, EDIT_FILES, FileKind};
 use crate::scene::{PathId, Point, Scene};
-use crate::{imageio, pipeline, svg};
+use crate::svg;
 
 pub fn endpoints() -> Vec<Endpoint> {
     vec![
@@ -169,10 +170,8 @@ async fn create(
                 .read_artefact(&job_id, name)
                 .map_err(|e| ApiError::Internal(e.to_string()))
         };
-        let scene_name = match &base {
-            Some(base) => format!("edits/{base}/scene.json"),
-            None => "scene.json".to_owned(),
-        };
+        let prefix = base.as_ref().map(|base| format!("edits/{base}/")).unwrap_or_default();
+        let scene_name = format!("{prefix}{}", FileKind::SceneJson.name());
         let scene_bytes = read(&scene_name)?.ok_or_else(|| ApiError::ResultNotFound(scene_name.clone()))?;
         let scene: Scene = serde_json::from_slice(&scene_bytes)
             .map_err(|e| ApiError::Internal(format!("stored scene: {e}")))?;
@@ -187,15 +186,12 @@ async fn create(
                 .map_err(|e| ApiError::Internal(format!("stored input: {e}")))?;
                 let reference = imageio::decode_image(&image, &limits)
                     .map_err(|e| ApiError::UndecodableImage("reference image", e.to_string()))?;
-                if (reference.width(), reference.height()) != (original.width(), original.height()) {
-                    return Err(ApiError::InvalidInput(format!(
-                        "the reference image is {}×{}; it must be the size of the job's image, {}×{}",
-                        reference.width(),
-                        reference.height(),
-                        original.width(),
-                        original.height()
-                    )));
-                }
+                imageio::check_aspect(
+                    "the reference image",
+                    (reference.width(), reference.height()),
+                    (original.width(), original.height()),
+                )
+                .map_err(|e| ApiError::InvalidInput(e.to_string()))?;
                 let (w, h) = (scene.width, scene.height);
                 let edit = edit::recolor_by_reference(
                     &scene,
@@ -350,50 +346,48 @@ fn store_edit(
     let store = queue.store();
     let write = |name: &str, bytes: &[u8]| {
         store
-            .write_artefact(job_id, &format!("edits/{id}/{name}"), bytes)
+            .write_artefact(job_id, name, bytes)
             .map_err(|e| ApiError::Internal(e.to_string()))
     };
+    for artefact in output::artefacts(&edit.scene, EDIT_FILES) {
+        write(&format!("edits/{id}/{}", artefact.kind.name()), &artefact.bytes)?;
+    }
     write(
-        "scene.json",
-        &serde_json::to_vec_pretty(&edit.scene).expect("a scene serialises"),
-    )?;
-    write(
-        "result.svg",
-        svg::to_svg(&edit.scene, &svg::SvgOptions::default()).as_bytes(),
-    )?;
-    write(
-        "preview.png",
-        &imageio::encode_png(&pipeline::composite(&edit.scene)),
-    )?;
-    write(
-        "edit.json",
+        &edit_record(&id),
         &serde_json::to_vec_pretty(&record).expect("a record serialises"),
     )?;
     Ok(record)
 }
 
 /// Checks access to the job and the edit id; the edit exists once its record does.
-async fn edit_artefact(
+async fn check_edit(
     state: &AppState,
     owner: &Owner,
     id: &str,
     edit_id: &str,
-    file: &str,
-    media_type: &'static str,
-) -> Result<Response, ApiError> {
+) -> Result<(), ApiError> {
     let entry = find(state, owner, id)?;
     require_success(&entry.snapshot())?;
     check_edit_id(edit_id)?;
-    if file != "edit.json" {
-        artefact(
-            state,
-            id,
-            format!("edits/{edit_id}/edit.json"),
-            "application/json",
-        )
-        .await?;
-    }
-    artefact(state, id, format!("edits/{edit_id}/{file}"), media_type).await
+    Ok(())
+}
+
+/// One of an edit's scene files, once the edit exists.
+async fn edit_file(
+    state: &AppState,
+    owner: &Owner,
+    id: &str,
+    edit_id: &str,
+    kind: FileKind,
+) -> Result<Response, ApiError> {
+    check_edit(state, owner, id, edit_id).await?;
+    artefact(state, id, edit_record(edit_id), "application/json").await?;
+    scene_file(state, id, &format!("edits/{edit_id}/"), kind).await
+}
+
+/// Where an edit's record is stored.
+fn edit_record(edit_id: &str) -> String {
+    format!("edits/{edit_id}/edit.json")
 }
 
 async fn get(
@@ -401,15 +395,8 @@ async fn get(
     Extension(owner): Extension<Owner>,
     Path((id, edit_id)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
-    edit_artefact(
-        &state,
-        &owner,
-        &id,
-        &edit_id,
-        "edit.json",
-        "application/json",
-    )
-    .await
+    check_edit(&state, &owner, &id, &edit_id).await?;
+    artefact(&state, &id, edit_record(&edit_id), "application/json").await
 }
 
 async fn edit_svg(
@@ -417,7 +404,7 @@ async fn edit_svg(
     Extension(owner): Extension<Owner>,
     Path((id, edit_id)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
-    edit_artefact(&state, &owner, &id, &edit_id, "result.svg", SVG).await
+    edit_file(&state, &owner, &id, &edit_id, FileKind::LayeredSvg).await
 }
 
 async fn edit_scene(
@@ -425,15 +412,7 @@ async fn edit_scene(
     Extension(owner): Extension<Owner>,
     Path((id, edit_id)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
-    edit_artefact(
-        &state,
-        &owner,
-        &id,
-        &edit_id,
-        "scene.json",
-        "application/json",
-    )
-    .await
+    edit_file(&state, &owner, &id, &edit_id, FileKind::SceneJson).await
 }
 
 async fn edit_preview(
@@ -441,5 +420,5 @@ async fn edit_preview(
     Extension(owner): Extension<Owner>,
     Path((id, edit_id)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
-    edit_artefact(&state, &owner, &id, &edit_id, "preview.png", "image/png").await
+    edit_file(&state, &owner, &id, &edit_id, FileKind::Preview).await
 }

@@ -23,11 +23,9 @@ use super::error::ApiError;
 use super::model::{CancelReason, JobRecord, ProgressView, Status, now_ms};
 use super::ops::Metrics;
 use super::store::{Store, StoreError};
-use super::submit::{InputLimits, decode_inputs};
+use super::submit::{InputLimits, decode_inputs, input_error};
 use crate::pipeline::{self, Observer, Progress};
 use crate::render::Image;
-use crate::scene::LayerKind;
-use crate::svg;
 
 /// Queue and worker settings.
 #[derive(Clone, Debug)]
@@ -643,8 +641,8 @@ impl Queue {
         }));
         deadline.abort();
         match result {
-            Ok(Ok(output)) => match self.write_results(&entry.id, &output.scene) {
-                Ok(()) => Outcome::Succeeded(output.mode),
+            Ok(Ok(output)) => match self.write_results(&entry.id, &output) {
+                Ok(()) => Outcome::Succeeded(output.mode.into()),
                 Err(error) => Outcome::Failed(internal(error)),
             },
             Ok(Err(pipeline::Error::Canceled)) => match *lock(&entry.cancel_reason) {
@@ -654,11 +652,13 @@ impl Queue {
                 Some(CancelReason::Shutdown) => Outcome::Interrupted,
                 Some(CancelReason::User) | None => Outcome::Canceled,
             },
-            Ok(Err(pipeline::Error::Input(message))) => {
-                Outcome::Failed(ApiError::InvalidInput(message))
-            }
+            Ok(Err(pipeline::Error::Input(error))) => Outcome::Failed(input_error("inputs")(error)),
             Ok(Err(pipeline::Error::Params(message))) => {
                 Outcome::Failed(ApiError::InvalidParams(message))
+            }
+            Ok(Err(pipeline::Error::Internal(message))) => {
+                warn!(job_id = %entry.id, "internal error in the pipeline: {message}");
+                Outcome::Failed(ApiError::Internal(message))
             }
             Err(panic) => {
                 let message = panic
@@ -671,21 +671,13 @@ impl Queue {
         }
     }
 
-    /// The layered SVG, one SVG per layer and the JSON scene; `result.svg` is written last.
-    fn write_results(&self, id: &str, scene: &crate::scene::Scene) -> Result<(), StoreError> {
-        let options = svg::SvgOptions::default();
-        for kind in [LayerKind::Albedo, LayerKind::Shade, LayerKind::Light] {
-            let svg = svg::layer_to_svg(scene, kind, &options);
-            self.store.write_artefact(
-                id,
-                &format!("layers/{}.svg", kind.name()),
-                svg.as_bytes(),
-            )?;
+    /// The run's files, in [`pipeline::Output::artefacts`] order (`result.svg` last).
+    fn write_results(&self, id: &str, output: &pipeline::Output) -> Result<(), StoreError> {
+        for artefact in output.artefacts() {
+            self.store
+                .write_artefact(id, &artefact.kind.name(), &artefact.bytes)?;
         }
-        let json = serde_json::to_vec_pretty(scene).expect("a scene always serialises");
-        self.store.write_artefact(id, "scene.json", &json)?;
-        self.store
-            .write_artefact(id, "result.svg", svg::to_svg(scene, &options).as_bytes())
+        Ok(())
     }
 }
 

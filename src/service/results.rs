@@ -12,6 +12,8 @@ use super::error::ApiError;
 use super::jobs::find;
 use super::model::{JobRecord, Status};
 use super::{AppState, Endpoint, endpoint};
+use crate::output::FileKind;
+use crate::scene::LayerKind;
 
 pub fn endpoints() -> Vec<Endpoint> {
     vec![
@@ -23,8 +25,6 @@ pub fn endpoints() -> Vec<Endpoint> {
     ]
 }
 
-pub(super) const SVG: &str = "image/svg+xml";
-
 pub(super) fn require_success(record: &JobRecord) -> Result<(), ApiError> {
     if record.data_removed {
         return Err(ApiError::DataRemoved(record.id.clone()));
@@ -33,6 +33,16 @@ pub(super) fn require_success(record: &JobRecord) -> Result<(), ApiError> {
         return Err(ApiError::NotReady(record.id.clone(), record.status.name()));
     }
     Ok(())
+}
+
+/// Reads a stored file of a scene (under `prefix`, e.g. `edits/<id>/`) off the async workers.
+pub(super) async fn scene_file(
+    state: &AppState,
+    id: &str,
+    prefix: &str,
+    kind: FileKind,
+) -> Result<Response, ApiError> {
+    artefact(state, id, format!("{prefix}{}", kind.name()), kind.media_type()).await
 }
 
 /// Reads a stored artefact off the async workers.
@@ -66,7 +76,7 @@ async fn svg(
 ) -> Result<Response, ApiError> {
     let entry = find(&state, &owner, &id)?;
     require_success(&entry.snapshot())?;
-    artefact(&state, &id, "result.svg".into(), SVG).await
+    scene_file(&state, &id, "", FileKind::LayeredSvg).await
 }
 
 async fn layer(
@@ -75,13 +85,16 @@ async fn layer(
     Path((id, file)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
     let entry = find(&state, &owner, &id)?;
-    if !["albedo.svg", "shade.svg", "light.svg"].contains(&file.as_str()) {
+    let Some(kind) = LayerKind::ALL
+        .into_iter()
+        .find(|kind| file.strip_suffix(".svg") == Some(kind.name()))
+    else {
         return Err(ApiError::ResultNotFound(format!(
             "layers/{file} (layers are albedo.svg, shade.svg, light.svg)"
         )));
-    }
+    };
     require_success(&entry.snapshot())?;
-    artefact(&state, &id, format!("layers/{file}"), SVG).await
+    scene_file(&state, &id, "", FileKind::Layer(kind)).await
 }
 
 async fn scene(
@@ -91,7 +104,7 @@ async fn scene(
 ) -> Result<Response, ApiError> {
     let entry = find(&state, &owner, &id)?;
     require_success(&entry.snapshot())?;
-    artefact(&state, &id, "scene.json".into(), "application/json").await
+    scene_file(&state, &id, "", FileKind::SceneJson).await
 }
 
 async fn previews(

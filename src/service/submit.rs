@@ -13,7 +13,7 @@ use sha2::{Digest, Sha256};
 
 use super::error::ApiError;
 use crate::imageio;
-use crate::pipeline::{Inputs, Masks, Params};
+use crate::pipeline::{Inputs, Masks, ParamLimits, Params};
 
 /// Limits on what one job may ask for.
 #[derive(Clone, Debug)]
@@ -28,9 +28,28 @@ pub struct InputLimits {
     pub max_paths: u32,
     /// Largest `params.max_size`. Default 1024.
     pub max_size: u32,
-    /// Largest total iteration budget (structure + reconstruction + refine_rounds × refine + polish).
-    /// Default 5000 (the defaults add up to 650).
+    /// Largest total iteration budget ([`crate::Iterations::total`]). Default 5000 (the defaults
+    /// add up to 650).
     pub max_iterations: u64,
+}
+
+impl InputLimits {
+    /// The parameter ranges these limits allow.
+    pub fn params(&self) -> ParamLimits {
+        ParamLimits {
+            max_paths: self.max_paths,
+            max_size: self.max_size,
+            max_iterations: Some(self.max_iterations),
+        }
+    }
+
+    /// The decoder limits these limits imply.
+    pub fn decoding(&self) -> imageio::Limits {
+        imageio::Limits {
+            max_pixels: self.max_pixels,
+            max_masks: self.max_masks,
+        }
+    }
 }
 
 impl Default for InputLimits {
@@ -243,36 +262,14 @@ fn parse_params(value: serde_json::Value) -> Result<Params, ApiError> {
     serde_json::from_value(value).map_err(|error| ApiError::InvalidParams(error.to_string()))
 }
 
-/// Range checks beyond what the types enforce.
+/// The parameters' ranges, as configured: [`Params::validate`] is their one home.
 fn check_params(params: &Params, limits: &InputLimits) -> Result<(), ApiError> {
-    params.validate().map_err(|error| match error {
-        crate::pipeline::Error::Params(detail) => ApiError::InvalidParams(detail),
-        other => ApiError::InvalidParams(other.to_string()),
-    })?;
-    if !(8..=limits.max_paths).contains(&params.paths) {
-        return Err(ApiError::InvalidParams(format!(
-            "`paths` must be in 8..={}, not {}",
-            limits.max_paths, params.paths
-        )));
-    }
-    if !(16..=limits.max_size).contains(&params.max_size) {
-        return Err(ApiError::InvalidParams(format!(
-            "`max_size` must be in 16..={}, not {}",
-            limits.max_size, params.max_size
-        )));
-    }
-    let it = &params.iterations;
-    let total = u64::from(it.structure)
-        + u64::from(it.reconstruction)
-        + u64::from(it.refine_rounds) * u64::from(it.refine)
-        + u64::from(it.polish);
-    if total > limits.max_iterations {
-        return Err(ApiError::InvalidParams(format!(
-            "the iteration budget {total} is over the limit of {}",
-            limits.max_iterations
-        )));
-    }
-    Ok(())
+    params
+        .validate(&limits.params())
+        .map_err(|error| match error {
+            crate::pipeline::Error::Params(detail) => ApiError::InvalidParams(detail),
+            other => ApiError::Internal(other.to_string()),
+        })
 }
 
 impl Submission {
@@ -316,60 +313,38 @@ pub fn decode_inputs(
             "send either `mask` fields or one `labels` map, not both".into(),
         ));
     }
-    let decode_limits = imageio::Limits {
-        max_pixels: limits.max_pixels,
-        max_masks: limits.max_masks,
-    };
+    let decode_limits = limits.decoding();
     let image = imageio::decode_image(image, &decode_limits).map_err(input_error("image"))?;
-    let (width, height) = (image.width(), image.height());
-    let same_size = |what: String, (w, h): (u32, u32)| {
-        if (w, h) == (width, height) {
-            Ok(())
-        } else {
-            Err(ApiError::InvalidInput(format!(
-                "{what} is {w}×{h} but the image is {width}×{height}"
-            )))
-        }
-    };
     let albedo = albedo
         .map(|bytes| imageio::decode_image(bytes, &decode_limits).map_err(input_error("albedo")))
         .transpose()?;
-    if let Some(albedo) = &albedo {
-        let (aw, ah) = (f64::from(albedo.width()), f64::from(albedo.height()));
-        let (iw, ih) = (f64::from(width), f64::from(height));
-        if ((aw / ah) / (iw / ih) - 1.0).abs() > 0.01 {
-            return Err(ApiError::InvalidInput(format!(
-                "the albedo map is {aw}×{ah}, not the aspect ratio of the {iw}×{ih} image"
-            )));
-        }
-    }
     let masks = if let Some(labels) = labels {
-        let labels =
-            imageio::decode_labels(labels, &decode_limits).map_err(input_error("label map"))?;
-        same_size("the label map".into(), (labels.width(), labels.height()))?;
-        Masks::Labels(labels)
+        Masks::Labels(
+            imageio::decode_labels(labels, &decode_limits).map_err(input_error("label map"))?,
+        )
     } else if masks.is_empty() {
         Masks::None
     } else {
         let mut binary = Vec::with_capacity(masks.len());
         for (index, bytes) in masks.iter().enumerate() {
             let name = format!("mask {index}");
-            let mask =
-                imageio::decode_mask(&name, bytes, &decode_limits).map_err(input_error("mask"))?;
-            same_size(name, mask.dimensions())?;
-            binary.push(mask);
+            binary.push(
+                imageio::decode_mask(&name, bytes, &decode_limits).map_err(input_error("mask"))?,
+            );
         }
         Masks::Binary(binary)
     };
-    Ok(Inputs {
+    let inputs = Inputs {
         image,
         albedo,
         masks,
-    })
+    };
+    inputs.check().map_err(input_error("inputs"))?;
+    Ok(inputs)
 }
 
 /// Maps a decoding refusal to its problem: limits are 413, the rest 422.
-fn input_error(what: &'static str) -> impl Fn(imageio::InputError) -> ApiError {
+pub(super) fn input_error(what: &'static str) -> impl Fn(imageio::InputError) -> ApiError {
     move |error| match error {
         imageio::InputError::Undecodable(detail) => ApiError::UndecodableImage(what, detail),
         imageio::InputError::TooManyPixels { pixels, max, .. } => ApiError::TooManyPixels {
@@ -380,6 +355,9 @@ fn input_error(what: &'static str) -> impl Fn(imageio::InputError) -> ApiError {
             limit: max as u64,
             actual: count as u64,
         },
+        aspect @ imageio::InputError::AspectRatio { .. } => {
+            ApiError::InvalidInput(aspect.to_string())
+        }
         other @ (imageio::InputError::Empty { .. } | imageio::InputError::NonBinaryMask { .. }) => {
             ApiError::InvalidInput(format!("{what}: {other}"))
         }

@@ -1,0 +1,89 @@
+//! Files for the subcommands: reading, writing and decoding with the path in every error, and
+//! writing a scene's [`Artefact`]s where the command line puts them.
+
+use std::path::{Path, PathBuf};
+
+use covec::imageio::{self, InputError, Limits};
+use covec::output::{Artefact, FileKind};
+
+/// A file that could not be read, written or decoded; printed as one line.
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot write {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Input { path: PathBuf, source: InputError },
+}
+
+pub fn read(path: &Path) -> Result<Vec<u8>, IoError> {
+    std::fs::read(path).map_err(|source| IoError::Read {
+        path: path.into(),
+        source,
+    })
+}
+
+pub fn write(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    std::fs::write(path, bytes).map_err(|source| IoError::Write {
+        path: path.into(),
+        source,
+    })
+}
+
+pub fn create_dir(dir: &Path) -> Result<(), IoError> {
+    std::fs::create_dir_all(dir).map_err(|source| IoError::Write {
+        path: dir.into(),
+        source,
+    })
+}
+
+/// The entries of a directory, in file-name order.
+pub fn list_dir(dir: &Path) -> Result<Vec<PathBuf>, IoError> {
+    let unreadable = |source| IoError::Read {
+        path: dir.into(),
+        source,
+    };
+    let mut paths = std::fs::read_dir(dir)
+        .map_err(unreadable)?
+        .map(|entry| entry.map(|e| e.path()).map_err(unreadable))
+        .collect::<Result<Vec<_>, _>>()?;
+    paths.sort();
+    Ok(paths)
+}
+
+/// Whether a file's extension is one covec decodes (PNG, JPEG, WebP).
+pub fn is_image_file(path: &Path) -> bool {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    matches!(ext.as_str(), "png" | "jpg" | "jpeg" | "webp")
+}
+
+/// Reads and decodes an image under `limits`.
+pub fn decode_image(path: &Path, limits: &Limits) -> Result<image::DynamicImage, IoError> {
+    imageio::decode_image(&read(path)?, limits).map_err(|source| IoError::Input {
+        path: path.into(),
+        source,
+    })
+}
+
+/// Writes each artefact to the path `destination` gives its kind; kinds without one are skipped.
+pub fn write_artefacts(
+    artefacts: &[Artefact],
+    destination: impl Fn(FileKind) -> Option<PathBuf>,
+) -> Result<(), IoError> {
+    for artefact in artefacts {
+        if let Some(path) = destination(artefact.kind) {
+            write(&path, &artefact.bytes)?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,86 @@
+//! The decompose stage: the working-size target, its albedo map and candidate albedo masks,
+//! from the client's network outputs when given, else from the classical substitutes of
+//! [`crate::decompose`]; and `auto` resolved.
+
+use super::params::{Inputs, Masks, Mode, Params, ResolvedMode};
+use crate::decompose::mask::Mask;
+use crate::decompose::segment::{self, Candidate};
+use crate::decompose::{
+    SIMPLE_PALETTE_COVERAGE, albedo, label_masks, min_mask_area, palette_coverage, sample_mask,
+    score_masks,
+};
+use crate::imageio::{resize_rgb, working_size};
+use crate::render::Image;
+
+/// How many segmentation masks the decompose stage offers the init stage to choose from.
+const SEGMENT_CANDIDATES: usize = 128;
+
+/// What the init stage starts from.
+pub(crate) struct Decomposition {
+    /// The image at working size.
+    pub target: Image,
+    /// The albedo map at working size (the target itself in simple mode).
+    pub albedo: Image,
+    /// Albedo mask candidates, most useful first: holes filled, connected, none tiny.
+    pub candidates: Vec<Candidate>,
+    /// The mode to run.
+    pub mode: ResolvedMode,
+}
+
+/// Resolves `auto` from the working-size target: `simple` when a few exact colours cover much
+/// of it (see [`palette_coverage`]).
+pub(crate) fn resolve_mode(mode: Mode, target: &Image) -> ResolvedMode {
+    match mode {
+        Mode::Photo => ResolvedMode::Photo,
+        Mode::Simple => ResolvedMode::Simple,
+        Mode::Auto if palette_coverage(target) >= SIMPLE_PALETTE_COVERAGE => ResolvedMode::Simple,
+        Mode::Auto => ResolvedMode::Photo,
+    }
+}
+
+/// The decompose stage, on inputs that passed [`Inputs::check`].
+pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
+    let (ow, oh) = (inputs.image.width(), inputs.image.height());
+    let (w, h) = working_size(ow, oh, params.max_size);
+    let target = resize_rgb(&inputs.image, w, h);
+    let mode = resolve_mode(params.mode, &target);
+    let albedo = match (&inputs.albedo, mode) {
+        (Some(map), _) => resize_rgb(map, w, h),
+        (None, ResolvedMode::Simple) => target.clone(),
+        (None, ResolvedMode::Photo) => {
+            albedo::albedo_from_shading(&target, &albedo::estimate_shading(&target))
+        }
+    };
+    let (w, h) = (w as usize, h as usize);
+    let min_area = min_mask_area(w, h);
+    let given: Option<Vec<Mask>> = match &inputs.masks {
+        Masks::None => None,
+        Masks::Binary(masks) => Some(masks.iter().map(|m| sample_mask(m, w, h)).collect()),
+        Masks::Labels(labels) => Some(label_masks(labels, w, h)),
+    };
+    let candidates = match given {
+        Some(given) => {
+            let prepared = given
+                .iter()
+                .flat_map(|m| m.fill_holes().components(min_area))
+                .collect();
+            score_masks(prepared, &albedo)
+        }
+        None => segment::segment(&albedo, SEGMENT_CANDIDATES)
+            .into_iter()
+            .flat_map(|c| {
+                c.mask
+                    .fill_holes()
+                    .components(min_area)
+                    .into_iter()
+                    .map(move |mask| Candidate { mask, gain: c.gain })
+            })
+            .collect(),
+    };
+    Decomposition {
+        target,
+        albedo,
+        candidates,
+        mode,
+    }
+}

@@ -1,0 +1,118 @@
+//! The pipeline through its public API: the path budget, refused inputs, the auto mode.
+//! (Binarisation, organisation and contour tracing are unit-tested beside their code.)
+
+use std::sync::atomic::AtomicBool;
+
+use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet, ResolvedMode};
+use covec::synth::blobs_photo as synthetic_photo;
+use image::{DynamicImage, GrayImage, RgbImage};
+
+#[test]
+fn the_path_budget_is_never_exceeded() {
+    let image = DynamicImage::ImageRgb8(synthetic_photo(64, 48));
+    for mode in [Mode::Photo, Mode::Simple, Mode::Auto] {
+        for paths in [8u32, 9, 13, 64, 200, 1024] {
+            // No optimisation iterations and no refinement rounds: the output is the init scene.
+            let params = Params {
+                paths,
+                mode,
+                iterations: Iterations {
+                    structure: 0,
+                    reconstruction: 0,
+                    refine_rounds: 0,
+                    refine: 0,
+                    polish: 0,
+                },
+                ..Params::default()
+            };
+            let inputs = Inputs {
+                image: image.clone(),
+                albedo: None,
+                masks: Masks::None,
+            };
+            let out = pipeline::run(&inputs, &params, &Quiet, &AtomicBool::new(false)).unwrap();
+            let count = out.scene.path_count();
+            assert!(count <= paths as usize, "{mode:?} {paths}: {count} paths");
+            assert!(
+                count as f32 <= (0.4 * paths as f32).max(1.0),
+                "init keeps to the structure share: {count} of {paths}"
+            );
+            assert!(count >= 1, "the base path is always there");
+            if out.mode == ResolvedMode::Simple {
+                assert!(out.scene.shade.paths.is_empty() && out.scene.light.paths.is_empty());
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_masks_and_parameters_are_refused() {
+    let image = DynamicImage::ImageRgb8(synthetic_photo(64, 48));
+    let wrong_aspect = Inputs {
+        image: image.clone(),
+        albedo: None,
+        masks: Masks::Binary(vec![GrayImage::new(64, 64)]),
+    };
+    let err = pipeline::run(
+        &wrong_aspect,
+        &Params::default(),
+        &Quiet,
+        &AtomicBool::new(false),
+    )
+    .err()
+    .unwrap();
+    assert!(err.to_string().contains("aspect ratio"), "{err}");
+    let inputs = Inputs {
+        image,
+        albedo: None,
+        masks: Masks::None,
+    };
+    let err = pipeline::run(
+        &inputs,
+        &Params {
+            paths: 7,
+            ..Params::default()
+        },
+        &Quiet,
+        &AtomicBool::new(false),
+    )
+    .err()
+    .unwrap();
+    assert!(err.to_string().contains("8-1024"), "{err}");
+    let canceled = pipeline::run(&inputs, &Params::default(), &Quiet, &AtomicBool::new(true))
+        .err()
+        .unwrap();
+    assert!(matches!(canceled, pipeline::Error::Canceled));
+}
+
+#[test]
+fn auto_mode_tells_flat_artwork_from_photos() {
+    let run = |image: RgbImage| {
+        let inputs = Inputs {
+            image: DynamicImage::ImageRgb8(image),
+            albedo: None,
+            masks: Masks::None,
+        };
+        pipeline::run(&inputs, &Params::default(), &Quiet, &AtomicBool::new(false))
+            .unwrap()
+            .mode
+    };
+    // An icon: a few flat shapes on white (anti-aliased edges do not matter).
+    let icon = RgbImage::from_fn(64, 64, |x, y| {
+        let r2 = (x as i32 - 32).pow(2) + (y as i32 - 32).pow(2);
+        image::Rgb(if r2 < 100 {
+            [40, 40, 40]
+        } else if r2 < 700 {
+            [250, 200, 30]
+        } else {
+            [255, 255, 255]
+        })
+    });
+    assert_eq!(run(icon), ResolvedMode::Simple);
+    assert_eq!(run(synthetic_photo(64, 48)), ResolvedMode::Photo);
+    // A smooth, noiseless gradient (like an upscaled photo) is still a photo.
+    let gradient = RgbImage::from_fn(300, 200, |x, y| {
+        image::Rgb([(x * 255 / 299) as u8, (y * 255 / 199) as u8, 128])
+    });
+    assert_eq!(run(gradient), ResolvedMode::Photo);
+}
