@@ -2,6 +2,18 @@
 # The test command: installs what the tests need on a fresh machine, then runs every test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+# A fresh machine has cargo but maybe not nextest.
+if ! cargo nextest --version >/dev/null 2>&1; then
+    echo "test.sh: installing cargo-nextest" >&2
+    cargo install cargo-nextest --locked
+fi
+
+# The library's shape (README, "Code map"): layered imports, and a build without the command
+# line's and the service's dependencies.
+python3 scripts/check-modules.py
+cargo check --quiet --lib --no-default-features
+
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
 
 # The web page end to end (issue 7): headless Debian Chromium driven by playwright-core against a

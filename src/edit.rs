@@ -41,7 +41,9 @@ impl Default for ReferenceParams {
 /// One direct change: a path (by id, or the albedo path under a point) and its new fill.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ColorChange {
+    /// The path to change.
     pub target: Target,
+    /// Its new fill, in [0, 1].
     pub color: [f32; 3],
     /// New opacity, if it changes too.
     pub opacity: Option<f32>,
@@ -50,6 +52,7 @@ pub struct ColorChange {
 /// Which path a [`ColorChange`] applies to.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Target {
+    /// The path with this id.
     Path(PathId),
     /// The topmost albedo path covering this point (working-canvas coordinates).
     AlbedoAt(Point),
@@ -58,11 +61,16 @@ pub enum Target {
 /// A path the edit changed, with its fill before and after.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Changed {
+    /// Which path.
     #[serde(serialize_with = "serialize_id")]
     pub path: PathId,
+    /// Fill before the edit.
     pub old_color: [f32; 3],
+    /// Fill after the edit.
     pub new_color: [f32; 3],
+    /// Opacity before the edit.
     pub old_opacity: f32,
+    /// Opacity after the edit.
     pub new_opacity: f32,
 }
 
@@ -73,29 +81,40 @@ fn serialize_id<S: serde::Serializer>(id: &PathId, s: S) -> Result<S::Ok, S::Err
 /// The new scene (the original is untouched) and what changed.
 #[derive(Clone, Debug)]
 pub struct Edit {
+    /// The edited scene.
     pub scene: Scene,
+    /// Every path whose fill changed.
     pub changed: Vec<Changed>,
 }
 
+/// Why an edit was refused; each is the caller's mistake.
 #[derive(Debug, PartialEq, thiserror::Error)]
 pub enum EditError {
+    /// No path has this id.
     #[error("unknown path id `{0}`")]
     UnknownPath(String),
+    /// No albedo path covers the point `(x, y)`.
     #[error("no albedo path covers the point ({x}, {y})")]
+    #[allow(missing_docs)]
     NothingAt { x: f32, y: f32 },
+    /// A colour channel outside [0, 1].
     #[error("colour {0:?} is not in [0, 1]")]
     BadColor([f32; 3]),
+    /// An opacity outside [0, 1].
     #[error("opacity {0} is not in [0, 1]")]
     BadOpacity(f32),
+    /// Original and reference images of different sizes (at working size).
     #[error(
         "the reference image is {actual_width}×{actual_height}, the original {expected_width}×{expected_height}"
     )]
+    #[allow(missing_docs)]
     SizeMismatch {
         expected_width: usize,
         expected_height: usize,
         actual_width: usize,
         actual_height: usize,
     },
+    /// `k` of zero paths.
     #[error("k must be at least 1")]
     ZeroK,
 }

@@ -30,6 +30,7 @@ pub struct Quality {
     pub ms_ssim: Option<f32>,
 }
 
+/// MSE, PSNR, SSIM, GMSD and MS-SSIM of `reconstruction` against `target` (same size).
 pub fn quality(reconstruction: &Image, target: &Image) -> Quality {
     let mse = crate::optim::loss::mse_value(reconstruction, target);
     let psnr = if mse > 1e-10 {

@@ -32,13 +32,18 @@ impl Default for Limits {
 /// Why an input was refused; each names the problem for the user.
 #[derive(Debug, thiserror::Error)]
 pub enum InputError {
+    /// Not a PNG, JPEG or WebP file, or a broken one.
     #[error("the image could not be decoded: {0}")]
     Undecodable(String),
+    /// No pixels.
     #[error("the image is empty ({width}×{height} pixels)")]
+    #[allow(missing_docs)]
     Empty { width: u32, height: u32 },
     #[error(
         "the image has {width}×{height} = {pixels} pixels, more than the limit of {max} (raise --max-pixels)"
     )]
+    /// More pixels than [`Limits::max_pixels`], read from the header.
+    #[allow(missing_docs)]
     TooManyPixels {
         width: u32,
         height: u32,
@@ -48,12 +53,18 @@ pub enum InputError {
     #[error(
         "mask {name} is not binary: it holds {levels} distinct values; a binary mask holds 0 and one other value"
     )]
+    /// A mask with more than two values, or two without 0.
+    #[allow(missing_docs)]
     NonBinaryMask { name: String, levels: usize },
     #[error("{count} masks given, more than the limit of {max} (raise --max-masks)")]
+    /// More masks (or label values) than [`Limits::max_masks`].
+    #[allow(missing_docs)]
     TooManyMasks { count: usize, max: usize },
     #[error(
         "{what} is {width}×{height}, which does not have the image's aspect ratio ({image_width}×{image_height})"
     )]
+    /// An input without the image's aspect ratio ([`check_aspect`]).
+    #[allow(missing_docs)]
     AspectRatio {
         what: String,
         width: u32,

@@ -52,11 +52,7 @@ pub const RESULT_FILES: &[FileKind] = &[
 ];
 
 /// An edit's files.
-pub const EDIT_FILES: &[FileKind] = &[
-    FileKind::SceneJson,
-    FileKind::LayeredSvg,
-    FileKind::Preview,
-];
+pub const EDIT_FILES: &[FileKind] = &[FileKind::SceneJson, FileKind::LayeredSvg, FileKind::Preview];
 
 /// One file's contents.
 #[derive(Clone, Debug, PartialEq)]

@@ -11,8 +11,11 @@ use crate::render::Image;
 /// A grey image, values on the 0-255 scale, row-major.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Grey {
+    /// Columns.
     pub width: usize,
+    /// Rows.
     pub height: usize,
+    /// `width × height` values, row after row.
     pub data: Vec<f64>,
 }
 
@@ -181,7 +184,9 @@ pub fn gaussian_kernel(radius: usize, sigma: f64) -> Vec<f64> {
 /// Means over the valid region of SSIM's map and of its contrast-structure factor.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SsimMeans {
+    /// Mean SSIM.
     pub ssim: f64,
+    /// Mean of the contrast-structure factor (MS-SSIM's coarse-scale term).
     pub contrast_structure: f64,
 }
 

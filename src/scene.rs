@@ -10,11 +10,14 @@ use serde::{Deserialize, Serialize};
 /// A point in canvas pixels.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Point {
+    /// Rightwards from the canvas's left edge.
     pub x: f32,
+    /// Downwards from the canvas's top edge.
     pub y: f32,
 }
 
 impl Point {
+    /// The point `(x, y)`.
     pub const fn new(x: f32, y: f32) -> Self {
         Self { x, y }
     }
@@ -26,6 +29,7 @@ impl Point {
 /// `P_k → C_k,a → C_k,b → P_(k+1 mod n)`, so the last segment ends at `P0`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Path {
+    /// Control points, 3 per segment (see above).
     pub points: Vec<Point>,
     /// Fill colour, sRGB-encoded. The optimiser may let illumination colours exceed 1; files
     /// always hold them clamped to [0, 1].
@@ -99,6 +103,7 @@ pub enum LayerKind {
 }
 
 impl LayerKind {
+    /// The layers in compositing order.
     pub const ALL: [LayerKind; 3] = [LayerKind::Albedo, LayerKind::Shade, LayerKind::Light];
 
     /// The colour the layer's paths are composited onto: white for albedo and shade (the
@@ -110,6 +115,7 @@ impl LayerKind {
         }
     }
 
+    /// `albedo`, `shade` or `light`: the SVG group id and file name.
     pub fn name(self) -> &'static str {
         match self {
             LayerKind::Albedo => "albedo",
@@ -118,6 +124,7 @@ impl LayerKind {
         }
     }
 
+    /// The layer named `name`, if any.
     pub fn from_name(name: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|k| k.name() == name)
     }
@@ -126,6 +133,7 @@ impl LayerKind {
 /// An ordered list of paths, painted back to front over the layer's base colour.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Layer {
+    /// Back to front.
     pub paths: Vec<Path>,
 }
 
@@ -134,12 +142,17 @@ pub struct Layer {
 pub struct Scene {
     /// Working canvas size in pixels: the coordinate system of every path (the SVG `viewBox`).
     pub width: u32,
+    /// Working canvas height in pixels.
     pub height: u32,
     /// Size of the original image, written as the SVG's `width` and `height`.
     pub original_width: u32,
+    /// Height of the original image.
     pub original_height: u32,
+    /// Surface colour; its first path is an opaque full-canvas base.
     pub albedo: Layer,
+    /// Shading, multiplied onto the albedo (`mix-blend-mode: multiply`).
     pub shade: Layer,
+    /// Highlights, added on top (`mix-blend-mode: plus-lighter`).
     pub light: Layer,
 }
 
@@ -157,6 +170,7 @@ impl Scene {
         }
     }
 
+    /// The layer of `kind`.
     pub fn layer(&self, kind: LayerKind) -> &Layer {
         match kind {
             LayerKind::Albedo => &self.albedo,
@@ -165,6 +179,7 @@ impl Scene {
         }
     }
 
+    /// The layer of `kind`, to change.
     pub fn layer_mut(&mut self, kind: LayerKind) -> &mut Layer {
         match kind {
             LayerKind::Albedo => &mut self.albedo,
@@ -195,6 +210,7 @@ impl Scene {
         self.layer(id.layer).paths.get(id.index)
     }
 
+    /// Looks a path up by its id, to change it.
     pub fn path_mut(&mut self, id: PathId) -> Option<&mut Path> {
         self.layer_mut(id.layer).paths.get_mut(id.index)
     }
@@ -204,7 +220,9 @@ impl Scene {
 /// order). It is the `id` attribute in the SVG and the key the editor takes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct PathId {
+    /// The path's layer.
     pub layer: LayerKind,
+    /// Its position in the layer's paint order.
     pub index: usize,
 }
 

@@ -8,9 +8,13 @@ use crate::render::Image;
 /// A generated scene: the image and its three true layers, all `width × height`.
 #[derive(Clone, Debug)]
 pub struct SyntheticScene {
+    /// `clamp01(albedo · shading + highlight)`.
     pub image: Image,
+    /// The true surface colours.
     pub albedo: Image,
+    /// The true (grey) shading.
     pub shading: Image,
+    /// The true additive highlights.
     pub highlight: Image,
 }
 

@@ -7,8 +7,8 @@ use std::sync::atomic::AtomicBool;
 
 use covec::edit::{ReferenceParams, recolor_by_reference};
 use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet};
-use covec::render::composite::composite;
 use covec::render::Image;
+use covec::render::composite::composite;
 use covec::scene::Scene;
 use covec::synth::{self, SyntheticScene};
 

@@ -4,10 +4,10 @@
 
 use std::sync::atomic::AtomicBool;
 
-use covec::render::composite::composite;
 use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet};
 use covec::render::Image;
 use covec::render::Rasterizer;
+use covec::render::composite::composite;
 use covec::scene::{LayerKind, Scene};
 use covec::svg::{SvgOptions, to_svg};
 use covec::synth::{self, SyntheticScene, scale_invariant_mse};

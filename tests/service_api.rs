@@ -28,8 +28,9 @@ async fn bad_requests_get_the_right_4xx_problem() {
         ],
     );
     let image = test_png(32);
-    let small_mask = png(&image::DynamicImage::ImageLuma8(image::GrayImage::new(
-        16, 16,
+    // Masks may be scaled copies of the image's grid, not of another aspect ratio.
+    let wide_mask = png(&image::DynamicImage::ImageLuma8(image::GrayImage::new(
+        32, 16,
     )));
     let big_image = test_png(64);
     let noise: Vec<u8> = (0..150_000u32)
@@ -95,9 +96,9 @@ async fn bad_requests_get_the_right_4xx_problem() {
             "invalid-params",
         ),
         (
-            "wrong-size mask",
+            "mask of another aspect ratio",
             server
-                .submit(&[("image", &image), ("mask", &small_mask)], &[])
+                .submit(&[("image", &image), ("mask", &wide_mask)], &[])
                 .await,
             StatusCode::UNPROCESSABLE_ENTITY,
             "invalid-input",

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use hyper::{Method, StatusCode};
 use serde_json::json;
-use service_support::{DataDir, QUICK_PARAMS, Server, multipart, problem, test_png};
+use service_support::{DataDir, QUICK_PARAMS, Server, multipart, png, problem, test_png};
 
 const PATIENCE: Duration = Duration::from_secs(60);
 
@@ -201,12 +201,12 @@ async fn bad_edits_are_4xx_problems() {
         assert_eq!(reply.status, status, "{body}: {}", reply.text());
         problem(&reply);
     }
-    // A reference of the wrong size, an undecodable one, a bad k, a missing reference.
+    // A reference of another aspect ratio, an undecodable one, a bad k, a missing reference.
+    let wide = png(&image::DynamicImage::ImageRgb8(image::RgbImage::new(
+        48, 24,
+    )));
     for (parts, status) in [
-        (
-            vec![("reference", test_png(40))],
-            StatusCode::UNPROCESSABLE_ENTITY,
-        ),
+        (vec![("reference", wide)], StatusCode::UNPROCESSABLE_ENTITY),
         (
             vec![("reference", b"not an image".to_vec())],
             StatusCode::UNPROCESSABLE_ENTITY,

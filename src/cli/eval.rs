@@ -216,8 +216,8 @@ fn run_one(
     let cancel = AtomicBool::new(false);
     let (scene, mode): (Scene, ResolvedMode) = match method {
         Method::Random => {
-            let mut scene = eval::random_baseline(&target, &params, &Quiet, &cancel)
-                .map_err(pipeline_error)?;
+            let mut scene =
+                eval::random_baseline(&target, &params, &Quiet, &cancel).map_err(pipeline_error)?;
             (scene.original_width, scene.original_height) = (image.width(), image.height());
             (scene, ResolvedMode::Simple)
         }

@@ -8,9 +8,7 @@ use std::time::Duration;
 
 use clap::Args;
 
-use covec::service::queue::QueueConfig;
-use covec::service::submit::InputLimits;
-use covec::service::{self, Config};
+use covec::service::{self, Config, InputLimits, QueueConfig};
 
 /// Every option also reads an environment variable (shown in `--help`); flags win.
 #[derive(Args, Debug)]

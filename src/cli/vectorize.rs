@@ -140,7 +140,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
     io::write_artefacts(&output.artefacts(), |kind| match kind {
         FileKind::LayeredSvg => Some(svg_path.clone()),
         FileKind::SceneJson => Some(json_path.clone()),
-        FileKind::Layer(layer) => (args.layers.as_ref()).map(|dir| dir.join(format!("{}.svg", layer.name()))),
+        FileKind::Layer(layer) => {
+            (args.layers.as_ref()).map(|dir| dir.join(format!("{}.svg", layer.name())))
+        }
         FileKind::Preview => None,
     })?;
     if std::io::stderr().is_terminal() {

@@ -64,6 +64,7 @@ impl Mask {
     }
 
     /// `[x0, y0, x1, y1)`, all zero when empty.
+    #[cfg(test)]
     pub fn bbox(&self) -> [usize; 4] {
         self.bbox
     }
@@ -114,14 +115,6 @@ impl Mask {
             .zip(&other.words[first..last])
             .map(|(a, b)| (a & b).count_ones() as usize)
             .sum()
-    }
-
-    /// Removes every pixel of `other`.
-    pub fn subtract(&mut self, other: &Mask) {
-        for (a, b) in self.words.iter_mut().zip(&other.words) {
-            *a &= !b;
-        }
-        self.recount();
     }
 
     /// The mask with every hole (background not 4-connected to the canvas border) filled.
@@ -335,8 +328,5 @@ mod tests {
         let a = Mask::from_fn(100, 3, |x, _| x < 70);
         let b = Mask::from_fn(100, 3, |x, y| x >= 60 && y == 1);
         assert_eq!(a.intersection_area(&b), 10);
-        let mut c = a.clone();
-        c.subtract(&b);
-        assert_eq!(c.area(), 200);
     }
 }

@@ -37,13 +37,6 @@ pub struct LayerGroups {
     pub groups: Vec<Vec<MaskedPath>>,
 }
 
-impl LayerGroups {
-    /// Number of structure paths in the layer.
-    pub fn path_count(&self) -> usize {
-        self.groups.iter().map(Vec::len).sum()
-    }
-}
-
 /// How the path budget is shared out.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Budget {
@@ -66,7 +59,9 @@ impl Budget {
         let structure = ((total as f32 * STRUCTURE_SHARE) as usize).clamp(1, total);
         let albedo = match mode {
             ResolvedMode::Simple => structure,
-            ResolvedMode::Photo => ((structure as f32 * ALBEDO_SHARE).ceil() as usize).clamp(1, structure),
+            ResolvedMode::Photo => {
+                ((structure as f32 * ALBEDO_SHARE).ceil() as usize).clamp(1, structure)
+            }
         };
         Self {
             total,
@@ -82,14 +77,11 @@ pub struct InitState {
     pub scene: Scene,
     /// The image at working size.
     pub target: Image,
-    /// The albedo map at working size (the target itself in simple mode).
-    pub albedo_map: Image,
     /// Albedo structure paths (in `scene.albedo`).
     pub albedo: LayerGroups,
     /// Illumination structure paths (in `scene.shade`); no groups in simple mode.
     pub illumination: LayerGroups,
     pub mode: ResolvedMode,
-    pub budget: Budget,
 }
 
 /// Douglas-Peucker tolerance in pixels: 1 px per 256 px of long side, at least 1 (LayerVec
@@ -99,7 +91,11 @@ pub fn simplify_tolerance(width: usize, height: usize) -> f32 {
 }
 
 /// The init stage.
-pub(crate) fn run(decomposition: Decomposition, params: &Params, original: (u32, u32)) -> InitState {
+pub(crate) fn run(
+    decomposition: Decomposition,
+    params: &Params,
+    original: (u32, u32),
+) -> InitState {
     let Decomposition {
         target,
         albedo: albedo_map,
@@ -123,7 +119,9 @@ pub(crate) fn run(decomposition: Decomposition, params: &Params, original: (u32,
                 all.extend(shadows);
                 albedo_masks = select(&sorted(all), budget.albedo, true, w, h);
             }
-            ResolvedMode::Photo => illumination_masks = select(&shadows, budget.illumination, false, w, h),
+            ResolvedMode::Photo => {
+                illumination_masks = select(&shadows, budget.illumination, false, w, h)
+            }
         }
     }
 
@@ -142,11 +140,9 @@ pub(crate) fn run(decomposition: Decomposition, params: &Params, original: (u32,
     InitState {
         scene,
         target,
-        albedo_map,
         albedo,
         illumination,
         mode,
-        budget,
     }
 }
 

@@ -97,7 +97,9 @@ impl<'a> Optimisation<'a> {
             )));
         }
         if (target.width, target.height) != (scene.width as usize, scene.height as usize) {
-            return Err(Error::Internal("target image and scene sizes differ".into()));
+            return Err(Error::Internal(
+                "target image and scene sizes differ".into(),
+            ));
         }
         let (w, h) = (target.width, target.height);
         Ok(Self {

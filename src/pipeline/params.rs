@@ -108,16 +108,6 @@ impl Default for Iterations {
     }
 }
 
-impl Iterations {
-    /// Every iteration of a run, summed over the stages (the defaults add up to 650).
-    pub fn total(&self) -> u64 {
-        super::stage::PHOTO_STAGES
-            .iter()
-            .map(|spec| (spec.iterations)(self))
-            .sum()
-    }
-}
-
 /// Ranges [`Params`] must keep. The defaults are what the pipeline supports; a service may
 /// configure narrower ones.
 #[derive(Clone, Debug, PartialEq)]

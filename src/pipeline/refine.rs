@@ -156,9 +156,13 @@ pub(crate) fn refine(
             factor: &factor,
             target,
         };
-        train(&mut canvas, &mut new_paths, &frame, &schedule, |it, loss| {
-            stage.iteration(base_iteration + it, total_iterations, Some(loss))
-        })?;
+        train(
+            &mut canvas,
+            &mut new_paths,
+            &frame,
+            &schedule,
+            |it, loss| stage.iteration(base_iteration + it, total_iterations, Some(loss)),
+        )?;
 
         if !last {
             prune(&mut canvas, &mut new_paths, &frame, settings);
@@ -178,9 +182,13 @@ pub(crate) fn refine(
                     iterations: iterations / 2,
                     ..schedule
                 };
-                train(&mut canvas, &mut merged_paths, &frame, &schedule, |_, loss| {
-                    stage.iteration(report, total_iterations, Some(loss))
-                })?;
+                train(
+                    &mut canvas,
+                    &mut merged_paths,
+                    &frame,
+                    &schedule,
+                    |_, loss| stage.iteration(report, total_iterations, Some(loss)),
+                )?;
                 new_paths.extend(merged_paths);
             }
         }

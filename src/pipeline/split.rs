@@ -21,11 +21,7 @@ pub struct SplitReport {
 }
 
 /// Splits the illumination layer in place (paper rule, no tolerance).
-pub(crate) fn split_layers(
-    scene: &mut Scene,
-    target: &Image,
-    stage: &StageRun,
-) -> SplitReport {
+pub(crate) fn split_layers(scene: &mut Scene, target: &Image, stage: &StageRun) -> SplitReport {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let (mut albedo, mut illumination, mut before) =

@@ -1,6 +1,6 @@
 //! What every stage shares: the stage lists ([`PHOTO_STAGES`], [`SIMPLE_STAGES`]), which drive
 //! running, progress counting and preview names; progress, previews and cancellation
-//! ([`RunContext`], [`StageRun`]); and rendering helpers over the rasteriser ([`Canvas`]).
+//! (`RunContext`, `StageRun`); and rendering helpers over the rasteriser (`Canvas`).
 
 use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -121,6 +121,16 @@ pub const SIMPLE_STAGES: &[StageSpec] = &[
     POLISH,
 ];
 
+impl Iterations {
+    /// Every iteration of a run, summed over the stages (the defaults add up to 650).
+    pub fn total(&self) -> u64 {
+        PHOTO_STAGES
+            .iter()
+            .map(|spec| (spec.iterations)(self))
+            .sum()
+    }
+}
+
 impl ResolvedMode {
     /// The stages this mode runs, in order.
     pub fn stages(self) -> &'static [StageSpec] {
@@ -212,7 +222,12 @@ impl StageRun<'_> {
     }
 
     /// Reports `iteration` of `iterations` and returns `Err(Canceled)` if the run was canceled.
-    pub fn iteration(&self, iteration: u32, iterations: u32, loss: Option<f32>) -> Result<(), Error> {
+    pub fn iteration(
+        &self,
+        iteration: u32,
+        iterations: u32,
+        loss: Option<f32>,
+    ) -> Result<(), Error> {
         self.run.observer.progress(&Progress {
             stage: self.spec.name,
             stage_index: self.index,
@@ -222,10 +237,6 @@ impl StageRun<'_> {
             loss,
             elapsed: self.run.started.elapsed(),
         });
-        self.run.check_cancel()
-    }
-
-    pub fn check_cancel(&self) -> Result<(), Error> {
         self.run.check_cancel()
     }
 
@@ -245,22 +256,13 @@ impl StageRun<'_> {
 /// Iterations (or rounds) `start..start + count` of a loop of `total`: a stage split into a
 /// coarse and a fine part reports progress against the whole.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct IterationSpan {
+pub(crate) struct IterationSpan {
     pub start: u32,
     pub count: u32,
     pub total: u32,
 }
 
 impl IterationSpan {
-    /// All `total` iterations.
-    pub fn all(total: u32) -> Self {
-        Self {
-            start: 0,
-            count: total,
-            total,
-        }
-    }
-
     /// Whether the span ends before the loop does (a coarse part).
     pub fn ends_early(&self) -> bool {
         self.start + self.count < self.total
@@ -277,7 +279,7 @@ pub(crate) fn hold_albedo_base(grads: &mut [PathGrad]) {
 }
 
 /// The rasteriser at one working size, with helpers for the compositing the stages need.
-pub struct Canvas {
+pub(crate) struct Canvas {
     pub raster: Rasterizer,
     pub width: usize,
     pub height: usize,

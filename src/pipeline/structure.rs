@@ -265,7 +265,9 @@ fn prepare_groups(
     for group in groups {
         let layer_len = scene.layer(group.layer).paths.len();
         if group.paths.len() != group.masks.len() {
-            return Err(Error::Internal("a mask group needs one mask per path".into()));
+            return Err(Error::Internal(
+                "a mask group needs one mask per path".into(),
+            ));
         }
         let mut target = Image::filled(w, h, [0.0; 3]);
         let mut colors = Vec::with_capacity(group.paths.len());

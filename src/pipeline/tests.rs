@@ -196,8 +196,13 @@ fn run_with(
 #[test]
 fn photo_stages_lower_the_loss_keep_the_budget_and_preserve_the_split() {
     let recorder = Recorder::default();
-    let (scene, report) =
-        run(ResolvedMode::Photo, &params(20), &recorder, &AtomicBool::new(false)).unwrap();
+    let (scene, report) = run(
+        ResolvedMode::Photo,
+        &params(20),
+        &recorder,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
     let loss = |name: &str| *report.losses.iter().find(|l| l.stage == name).unwrap();
     let (structure, reconstruct) = (loss("structure"), loss("reconstruct"));
     assert!(reconstruct.after < structure.before, "{:?}", report.losses);
@@ -241,8 +246,12 @@ fn photo_stages_lower_the_loss_keep_the_budget_and_preserve_the_split() {
 #[test]
 fn same_seed_gives_the_same_scene() {
     let cancel = AtomicBool::new(false);
-    let a = run(ResolvedMode::Photo, &params(14), &Quiet, &cancel).unwrap().0;
-    let b = run(ResolvedMode::Photo, &params(14), &Quiet, &cancel).unwrap().0;
+    let a = run(ResolvedMode::Photo, &params(14), &Quiet, &cancel)
+        .unwrap()
+        .0;
+    let b = run(ResolvedMode::Photo, &params(14), &Quiet, &cancel)
+        .unwrap()
+        .0;
     assert_eq!(
         serde_json::to_vec(&a).unwrap(),
         serde_json::to_vec(&b).unwrap()
@@ -251,7 +260,13 @@ fn same_seed_gives_the_same_scene() {
 
 #[test]
 fn simple_mode_grows_the_albedo_only() {
-    let (scene, report) = run(ResolvedMode::Simple, &params(12), &Quiet, &AtomicBool::new(false)).unwrap();
+    let (scene, report) = run(
+        ResolvedMode::Simple,
+        &params(12),
+        &Quiet,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
     assert_eq!(scene.albedo.paths.len(), 12);
     assert!(scene.shade.paths.is_empty() && scene.light.paths.is_empty());
     assert!(report.split.is_none());
@@ -261,14 +276,24 @@ fn simple_mode_grows_the_albedo_only() {
 
 #[test]
 fn cancel_stops_the_run() {
-    let result = run(ResolvedMode::Photo, &params(14), &Quiet, &AtomicBool::new(true));
+    let result = run(
+        ResolvedMode::Photo,
+        &params(14),
+        &Quiet,
+        &AtomicBool::new(true),
+    );
     assert!(matches!(result, Err(Error::Canceled)));
 }
 
 #[test]
 fn a_budget_below_the_initialisation_is_an_internal_error() {
     // The init stage keeps to the budget, so more paths than the budget after it is our bug.
-    let result = run(ResolvedMode::Photo, &params(3), &Quiet, &AtomicBool::new(false));
+    let result = run(
+        ResolvedMode::Photo,
+        &params(3),
+        &Quiet,
+        &AtomicBool::new(false),
+    );
     assert!(matches!(result, Err(Error::Internal(_))));
 }
 
@@ -284,8 +309,14 @@ fn coarse_to_fine_keeps_the_result_shape_and_the_progress_order() {
     assert!(coarse.applies(SIZE, SIZE) && !CoarseSettings::default().applies(SIZE, SIZE));
     let recorder = Recorder::default();
     let cancel = AtomicBool::new(false);
-    let (scene, report) =
-        run_with(ResolvedMode::Photo, &params(20), &coarse, &recorder, &cancel).unwrap();
+    let (scene, report) = run_with(
+        ResolvedMode::Photo,
+        &params(20),
+        &coarse,
+        &recorder,
+        &cancel,
+    )
+    .unwrap();
     let (_, fine) = run(ResolvedMode::Photo, &params(20), &Quiet, &cancel).unwrap();
     assert_eq!(scene.path_count(), 20);
     assert_eq!((scene.width, scene.height), (SIZE as u32, SIZE as u32));

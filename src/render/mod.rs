@@ -55,8 +55,11 @@ pub const STRIP_ROWS: usize = 16;
 /// An f32 RGB image, row-major, channels interleaved.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Image {
+    /// Columns.
     pub width: usize,
+    /// Rows.
     pub height: usize,
+    /// `3 · width · height` values: `data[3 * (y * width + x) + c]`.
     pub data: Vec<f32>,
 }
 
@@ -74,6 +77,10 @@ impl Image {
         }
     }
 
+    /// The RGB value at `(x, y)`.
+    ///
+    /// # Panics
+    /// If `(x, y)` is outside the image.
     pub fn pixel(&self, x: usize, y: usize) -> [f32; 3] {
         let i = 3 * (y * self.width + x);
         [self.data[i], self.data[i + 1], self.data[i + 2]]
@@ -90,8 +97,11 @@ impl Image {
 /// dLoss/d(parameters) of one path; `points` matches `Path::points` one to one.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PathGrad {
+    /// dLoss/d(control point), one per point.
     pub points: Vec<Point>,
+    /// dLoss/d(fill colour).
     pub color: [f32; 3],
+    /// dLoss/d(opacity).
     pub opacity: f32,
 }
 
@@ -142,10 +152,13 @@ impl Default for Flattening {
 /// zero gradients); callers that take paths from outside should [`check_path`] them first.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum PathError {
+    /// Not a positive multiple of 3 points.
     #[error("a path needs 3 points per cubic segment and at least one segment, got {0} points")]
     PointCount(usize),
+    /// A point with an infinite or NaN coordinate.
     #[error("path point {0} is not finite")]
     NonFinitePoint(usize),
+    /// An infinite or NaN colour or opacity.
     #[error("path colour or opacity is not finite")]
     NonFinitePaint,
 }
@@ -191,6 +204,7 @@ pub struct Rasterizer {
 }
 
 impl Rasterizer {
+    /// A rasteriser flattening cubics to [`FLATTEN_TOLERANCE`] (the default).
     pub fn new() -> Self {
         Self::default()
     }
@@ -203,6 +217,7 @@ impl Rasterizer {
         }
     }
 
+    /// How this rasteriser flattens cubics.
     pub fn flattening(&self) -> Flattening {
         self.flattening
     }

@@ -170,17 +170,27 @@ async fn create(
                 .read_artefact(&job_id, name)
                 .map_err(|e| ApiError::Internal(e.to_string()))
         };
-        let prefix = base.as_ref().map(|base| format!("edits/{base}/")).unwrap_or_default();
+        let prefix = base
+            .as_ref()
+            .map(|base| format!("edits/{base}/"))
+            .unwrap_or_default();
         let scene_name = format!("{prefix}{}", FileKind::SceneJson.name());
-        let scene_bytes = read(&scene_name)?.ok_or_else(|| ApiError::ResultNotFound(scene_name.clone()))?;
+        let scene_bytes =
+            read(&scene_name)?.ok_or_else(|| ApiError::ResultNotFound(scene_name.clone()))?;
         let scene: Scene = serde_json::from_slice(&scene_bytes)
             .map_err(|e| ApiError::Internal(format!("stored scene: {e}")))?;
         let (kind, edit) = match edit_request {
-            EditRequest::Colors(changes) => (EditKind::Colors, edit::recolor_paths(&scene, &changes)),
+            EditRequest::Colors(changes) => {
+                (EditKind::Colors, edit::recolor_paths(&scene, &changes))
+            }
             EditRequest::Reference { image, params } => {
-                let limits = imageio::Limits { max_pixels, ..imageio::Limits::default() };
+                let limits = imageio::Limits {
+                    max_pixels,
+                    ..imageio::Limits::default()
+                };
                 let original = imageio::decode_image(
-                    &read("input/image")?.ok_or_else(|| ApiError::ResultNotFound("input/image".into()))?,
+                    &read("input/image")?
+                        .ok_or_else(|| ApiError::ResultNotFound("input/image".into()))?,
                     &limits,
                 )
                 .map_err(|e| ApiError::Internal(format!("stored input: {e}")))?;
@@ -350,7 +360,10 @@ fn store_edit(
             .map_err(|e| ApiError::Internal(e.to_string()))
     };
     for artefact in output::artefacts(&edit.scene, EDIT_FILES) {
-        write(&format!("edits/{id}/{}", artefact.kind.name()), &artefact.bytes)?;
+        write(
+            &format!("edits/{id}/{}", artefact.kind.name()),
+            &artefact.bytes,
+        )?;
     }
     write(
         &edit_record(&id),

@@ -2,22 +2,25 @@
 //!
 //! Clients submit an image as a job, follow its progress by polling or Server-Sent Events, and
 //! fetch the layered SVG, per-layer SVGs, JSON scene and stage previews. Jobs run on a dedicated
-//! worker pool ([`queue`]), records and results persist in a data directory ([`store`]), and every
-//! error is an RFC 9457 problem ([`error`]).
+//! worker pool (`queue`), records and results persist in a data directory (`store`), and every
+//! error is an RFC 9457 problem (`error`).
 //!
 //! Each resource module lists its routes as [`Endpoint`]s; [`app`] builds the router from
 //! [`endpoints`], which a test compares with the OpenAPI document.
 
 mod auth;
 mod edits;
-pub mod error;
+mod error;
 mod jobs;
-pub mod model;
+mod model;
 mod ops;
-pub mod queue;
+mod queue;
 mod results;
-pub mod store;
-pub mod submit;
+mod store;
+mod submit;
+
+pub use queue::QueueConfig;
+pub use submit::InputLimits;
 
 use std::collections::HashSet;
 use std::net::SocketAddr;
@@ -40,9 +43,8 @@ use tower_http::trace::TraceLayer;
 
 use error::ApiError;
 use ops::Metrics;
-use queue::{Queue, QueueConfig, QueueError};
+use queue::{Queue, QueueError};
 use store::{Store, StoreError};
-use submit::InputLimits;
 
 /// Everything `covec serve` can be told.
 #[derive(Clone, Debug)]
@@ -51,7 +53,9 @@ pub struct Config {
     pub addr: SocketAddr,
     /// Job records and artefacts. Default `./covec-data`.
     pub data_dir: PathBuf,
+    /// Workers, queue length, time limit, retention.
     pub queue: QueueConfig,
+    /// What one job may send and ask for.
     pub limits: InputLimits,
     /// Accepted API keys; empty (the default) means no authentication.
     pub api_keys: Vec<String>,
@@ -87,19 +91,26 @@ pub struct AppState {
     shutdown: watch::Sender<bool>,
 }
 
+/// Why the server could not start or stopped with an error.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
+    /// The data directory or job database.
     #[error(transparent)]
     Store(#[from] StoreError),
+    /// Starting the workers.
     #[error(transparent)]
     Queue(#[from] QueueError),
+    /// The listening address.
     #[error("cannot listen on {addr}: {source}")]
+    #[allow(missing_docs)]
     Bind {
         addr: SocketAddr,
         source: std::io::Error,
     },
+    /// Serving connections.
     #[error("server: {0}")]
     Io(#[from] std::io::Error),
+    /// A `--cors-origins` value.
     #[error("CORS origin `{0}` is not a valid header value")]
     CorsOrigin(String),
 }
@@ -139,7 +150,9 @@ impl AppState {
 
 /// One route: a method and an OpenAPI-style path, with its handler.
 pub struct Endpoint {
+    /// The HTTP method.
     pub method: Method,
+    /// The path as the OpenAPI document writes it, e.g. `/v1/jobs/{id}`.
     pub path: &'static str,
     handler: MethodRouter<AppState>,
 }

@@ -226,10 +226,6 @@ impl Queue {
             && self.runners_alive.load(Ordering::SeqCst) == self.config.workers
     }
 
-    pub fn is_draining(&self) -> bool {
-        lock(&self.state).draining
-    }
-
     /// The job, if it exists and `owner` may see it.
     pub fn get(&self, id: &str, owner: &Option<String>) -> Option<Arc<JobEntry>> {
         lock(&self.state)

@@ -42,7 +42,13 @@ pub(super) async fn scene_file(
     prefix: &str,
     kind: FileKind,
 ) -> Result<Response, ApiError> {
-    artefact(state, id, format!("{prefix}{}", kind.name()), kind.media_type()).await
+    artefact(
+        state,
+        id,
+        format!("{prefix}{}", kind.name()),
+        kind.media_type(),
+    )
+    .await
 }
 
 /// Reads a stored artefact off the async workers.

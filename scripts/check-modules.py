@@ -1,0 +1,125 @@
+#!/usr/bin/env python3
+"""Holds the library to its module layering (README, "Code map").
+
+Reads every `crate::…` and `super::…` path in src/ (the library; the binary's cli/ and main.rs
+sit on top of it) outside `#[cfg(test)]` code, resolves each to the file that defines it, and
+fails if
+  - a top-level module imports one of a higher layer (LAYERS below), or
+  - the files import each other in a cycle (a parent `mod.rs` naming its own children does not
+    count: that is how Rust declares them).
+Prints the edges it refuses and exits 1; prints a one-line summary and exits 0 otherwise.
+"""
+import re
+import sys
+from pathlib import Path
+
+# Bottom to top; a module may import its own layer's modules only within itself.
+LAYERS = [
+    ["scene"],
+    ["geom"],
+    ["render"],
+    ["imageio", "optim", "svg"],
+    ["synth"],
+    ["perceptual", "decompose", "output", "edit"],
+    ["pipeline"],
+    ["eval"],
+    ["web"],
+    ["service"],
+]
+RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
+
+SRC = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parent.parent / "src"
+
+
+def module_of(path: Path) -> tuple:
+    parts = list(path.relative_to(SRC).with_suffix("").parts)
+    if parts[-1] in ("mod", "lib"):
+        parts.pop()
+    return tuple(parts)
+
+
+def code_of(path: Path) -> str:
+    text = path.read_text()
+    cut = text.find("#[cfg(test)]")
+    if cut >= 0:
+        text = text[:cut]
+    text = re.sub(r"//[^\n]*", "", text)
+    return text
+
+
+def paths_in(code: str):
+    """Every `crate::a::b` / `super::a` path, braces expanded one level."""
+    for m in re.finditer(r"\b(crate|super)((?:::\w+)*)(?:::\{([^}]*)\})?", code):
+        head = [m.group(1)] + [p for p in m.group(2).split("::") if p]
+        if m.group(3) is None:
+            yield head
+        else:
+            for item in m.group(3).split(","):
+                item = item.strip().split(" as ")[0].strip()
+                if item:
+                    yield head + [p for p in item.split("::") if p and p != "self"]
+
+
+def main() -> int:
+    files = {
+        module_of(p): p
+        for p in SRC.rglob("*.rs")
+        if p.relative_to(SRC).parts[0] not in ("cli", "main.rs") and p.name != "tests.rs"
+    }
+    modules = set(files)
+    edges = set()
+    for module, path in files.items():
+        is_dir_module = path.name in ("mod.rs", "lib.rs")
+        for parts in paths_in(code_of(path)):
+            if parts[0] == "crate":
+                target = list(parts[1:])
+            else:
+                base = list(module) if is_dir_module else list(module[:-1])
+                target = base + parts[1:]
+            # The longest prefix naming a module file is the file the item comes from.
+            while target and tuple(target) not in modules:
+                target.pop()
+            target = tuple(target)
+            if target == module or not target:
+                continue
+            if target[: len(module)] == module and is_dir_module:
+                continue  # a parent naming its children
+            edges.add((module, target))
+
+    bad = []
+    for a, b in sorted(edges):
+        ra, rb = RANK.get(a[0]), RANK.get(b[0])
+        if ra is None or rb is None:
+            bad.append(f"{'::'.join(a)} -> {'::'.join(b)}: module missing from LAYERS")
+        elif a[0] != b[0] and rb >= ra:
+            bad.append(f"{'::'.join(a)} -> {'::'.join(b)}: imports a layer at or above its own")
+
+    # Cycles among files (depth-first search).
+    graph = {m: sorted(b for a, b in edges if a == m) for m in modules}
+    state, stack = {}, []
+
+    def visit(node):
+        state[node] = "open"
+        stack.append(node)
+        for nxt in graph.get(node, []):
+            if state.get(nxt) == "open":
+                cycle = stack[stack.index(nxt):] + [nxt]
+                bad.append("cycle: " + " -> ".join("::".join(m) or "crate" for m in cycle))
+            elif nxt not in state:
+                visit(nxt)
+        stack.pop()
+        state[node] = "done"
+
+    for node in sorted(modules):
+        if node not in state:
+            visit(node)
+
+    if bad:
+        print("check-modules: the layering is broken:", *bad, sep="\n  ")
+        return 1
+    print(f"check-modules: {len(modules)} files, {len(edges)} imports, layered and acyclic")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
