@@ -20,7 +20,7 @@ use covec::svg::{self, SvgOptions};
 #[derive(ClapArgs, Debug)]
 pub struct Args {
     /// Image files, or directories searched recursively for PNG, JPEG and WebP files.
-    #[arg(required = true, value_name = "DIR|IMAGE")]
+    #[arg(required_unless_present = "write_scenes", value_name = "DIR|IMAGE")]
     pub inputs: Vec<PathBuf>,
     /// Path budgets to run, comma-separated.
     #[arg(
@@ -50,6 +50,19 @@ pub struct Args {
     /// Multiplies every stage's iteration count (e.g. 0.5 for a quicker, rougher eval).
     #[arg(long, default_value_t = 1.0, value_name = "F")]
     pub iteration_scale: f32,
+    /// Score the decomposition instead: each input is a scene directory (or a directory of
+    /// them) holding image.png, albedo.png, shade.png, light.png and optionally
+    /// cast-shadow.png and edited.png; runs photo mode, photo mode on the old Retinex albedo
+    /// map, and simple mode. `--method` is ignored.
+    #[arg(long)]
+    pub intrinsic: bool,
+    /// Write the generated scenes with known layers into this directory, one folder each,
+    /// and exit (inputs are ignored).
+    #[arg(long, value_name = "DIR")]
+    pub write_scenes: Option<PathBuf>,
+    /// Side of the generated scenes, in pixels.
+    #[arg(long, default_value_t = 256, value_name = "PX")]
+    pub scene_size: usize,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -84,6 +97,10 @@ pub enum Error {
     },
     #[error("no images found in the given inputs")]
     NoImages,
+    #[error("{0}")]
+    Truth(String),
+    #[error("no scene directories (with image.png and albedo.png) in the given inputs")]
+    NoScenes,
 }
 
 /// One run's measurements.
@@ -132,6 +149,12 @@ impl Row {
 }
 
 pub fn run(args: &Args) -> Result<(), Error> {
+    if let Some(dir) = &args.write_scenes {
+        return super::intrinsic::write_scenes(dir, args.scene_size);
+    }
+    if args.intrinsic {
+        return super::intrinsic::run(args);
+    }
     let mut images = Vec::new();
     for input in &args.inputs {
         collect_images(input, &mut images)?;
@@ -193,21 +216,7 @@ fn run_one(
         path: path.to_path_buf(),
         source,
     };
-    let mut params = Params {
-        paths: budget,
-        max_size: args.max_size,
-        seed: args.seed,
-        ..Params::default()
-    };
-    let scale = |n: u32| ((n as f32 * args.iteration_scale).round() as u32).max(u32::from(n > 0));
-    let it = &mut params.iterations;
-    (it.structure, it.reconstruction, it.refine, it.polish) = (
-        scale(it.structure),
-        scale(it.reconstruction),
-        scale(it.refine),
-        scale(it.polish),
-    );
-
+    let mut params = params_for(args, budget);
     eval::reset_peak_memory();
     let started = Instant::now();
     let image = imageio::decode_image(bytes, &Limits::default()).map_err(input_error)?;
@@ -265,6 +274,25 @@ fn run_one(
         seconds,
         peak_mb,
     })
+}
+
+/// The run parameters for `budget` paths: the command's size, seed and iteration scale.
+pub fn params_for(args: &Args, budget: u32) -> Params {
+    let mut params = Params {
+        paths: budget,
+        max_size: args.max_size,
+        seed: args.seed,
+        ..Params::default()
+    };
+    let scale = |n: u32| ((n as f32 * args.iteration_scale).round() as u32).max(u32::from(n > 0));
+    let it = &mut params.iterations;
+    (it.structure, it.reconstruction, it.refine, it.polish) = (
+        scale(it.structure),
+        scale(it.reconstruction),
+        scale(it.refine),
+        scale(it.polish),
+    );
+    params
 }
 
 /// Mean MS-SSIM of the rows that have one (images of at least 11 px), blank if none has.

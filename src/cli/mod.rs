@@ -2,6 +2,7 @@
 
 pub mod edit;
 pub mod eval;
+pub mod intrinsic;
 pub mod io;
 pub mod serve;
 pub mod vectorize;

@@ -12,6 +12,7 @@
 
 pub mod albedo;
 pub mod binarize;
+pub mod intrinsic;
 pub mod mask;
 pub mod organize;
 pub mod segment;

@@ -49,7 +49,7 @@ struct Merge {
 }
 
 /// 3-tap binomial blur per axis, to keep Felzenszwalb from cutting along noise.
-fn blur(image: &Image) -> Image {
+pub(super) fn blur(image: &Image) -> Image {
     let (w, h) = (image.width, image.height);
     let pass = |src: &Image, dx: usize, dy: usize| {
         let mut out = src.clone();
@@ -70,7 +70,7 @@ fn blur(image: &Image) -> Image {
 }
 
 /// Felzenszwalb-Huttenlocher segmentation on the 8-neighbour grid; returns dense labels 0..n.
-fn felzenszwalb(image: &Image, k: f32, min_size: usize) -> Vec<u32> {
+pub(super) fn felzenszwalb(image: &Image, k: f32, min_size: usize) -> Vec<u32> {
     let (w, h) = (image.width, image.height);
     let colour_distance = |a: usize, b: usize| {
         (0..3)
@@ -127,20 +127,20 @@ fn felzenszwalb(image: &Image, k: f32, min_size: usize) -> Vec<u32> {
         .collect()
 }
 
-struct DisjointSets {
+pub(super) struct DisjointSets {
     parent: Vec<usize>,
     size: Vec<usize>,
 }
 
 impl DisjointSets {
-    fn new(n: usize) -> Self {
+    pub(super) fn new(n: usize) -> Self {
         Self {
             parent: (0..n).collect(),
             size: vec![1; n],
         }
     }
 
-    fn find(&mut self, mut i: usize) -> usize {
+    pub(super) fn find(&mut self, mut i: usize) -> usize {
         while self.parent[i] != i {
             self.parent[i] = self.parent[self.parent[i]];
             i = self.parent[i];
@@ -149,7 +149,7 @@ impl DisjointSets {
     }
 
     /// Joins two roots; returns the new root.
-    fn union(&mut self, a: usize, b: usize) -> usize {
+    pub(super) fn union(&mut self, a: usize, b: usize) -> usize {
         let (big, small) = if self.size[a] >= self.size[b] {
             (a, b)
         } else {

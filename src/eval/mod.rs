@@ -3,6 +3,8 @@
 //! same engine, budget and total iteration count), so the value of COVec's initialisation and
 //! decomposition shows side by side.
 
+pub mod intrinsic;
+
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 

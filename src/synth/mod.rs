@@ -2,6 +2,8 @@
 //! (albedo), a smooth directional shading with a soft cast shadow (shade), and Gaussian
 //! highlights (light). Tests and the editing feature use them as ground truth.
 
+pub mod scenes;
+
 use crate::optim::rng::Rng;
 use crate::render::Image;
 
@@ -120,22 +122,29 @@ fn smoothstep(t: f32) -> f32 {
     u * u * (3.0 - 2.0 * u)
 }
 
-/// Scale-invariant MSE: `min_s mean((s·estimate − truth)²)`, since an albedo is only known up to
-/// a global scale.
+/// Scale-invariant MSE: `mean over channels c of min_s mean((s·estimate_c − truth_c)²)`. An
+/// albedo is only known up to a scale, and per channel because the illuminant's colour cannot
+/// be told from the surface's (a white wall under warm light looks like a cream wall).
 pub fn scale_invariant_mse(estimate: &Image, truth: &Image) -> f32 {
-    let (mut num, mut den) = (0.0f64, 0.0f64);
-    for (&e, &t) in estimate.data.iter().zip(&truth.data) {
-        num += f64::from(e) * f64::from(t);
-        den += f64::from(e) * f64::from(e);
-    }
-    let scale = if den > 0.0 { num / den } else { 0.0 };
+    let scales = channel_scales(estimate, truth);
     let sum: f64 = estimate
         .data
         .iter()
         .zip(&truth.data)
-        .map(|(&e, &t)| (scale * f64::from(e) - f64::from(t)).powi(2))
+        .enumerate()
+        .map(|(k, (&e, &t))| (scales[k % 3] * f64::from(e) - f64::from(t)).powi(2))
         .sum();
     (sum / estimate.data.len().max(1) as f64) as f32
+}
+
+/// Per channel, the scale `s` minimising `Σ (s·estimate − truth)²`.
+pub fn channel_scales(estimate: &Image, truth: &Image) -> [f64; 3] {
+    let (mut num, mut den) = ([0.0f64; 3], [0.0f64; 3]);
+    for (k, (&e, &t)) in estimate.data.iter().zip(&truth.data).enumerate() {
+        num[k % 3] += f64::from(e) * f64::from(t);
+        den[k % 3] += f64::from(e) * f64::from(e);
+    }
+    [0, 1, 2].map(|c| if den[c] > 0.0 { num[c] / den[c] } else { 0.0 })
 }
 
 /// An 8-bit RGB copy of `img` (values clamped to [0, 1]), e.g. to feed `pipeline::Inputs`.

@@ -1,0 +1,226 @@
+//! `covec eval --intrinsic` and `--write-scenes`: the decomposition scored against known layers
+//! (issue 11). One CSV row per scene, method and budget; a markdown summary per scene on
+//! standard error.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use super::eval::{Args, Error, params_for};
+use super::io;
+use covec::eval::intrinsic::{self, AlbedoEstimate, LayerScores, TRUTH_FILES, Truth};
+use covec::pipeline::{self, Inputs, Masks, Mode, Quiet};
+use covec::render::composite::composite;
+use covec::synth::{self, scenes};
+
+/// The runs compared on each scene.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Run {
+    /// Photo mode on the bare image: covec's own intrinsic decomposition.
+    Photo,
+    /// Photo mode given the grey Retinex albedo map covec used before, as a client's map.
+    PhotoRetinex,
+    /// The albedo-only variant: the no-decomposition baseline.
+    Simple,
+}
+
+const RUNS: [Run; 3] = [Run::Photo, Run::PhotoRetinex, Run::Simple];
+
+impl Run {
+    fn name(self) -> &'static str {
+        match self {
+            Run::Photo => "photo",
+            Run::PhotoRetinex => "photo-retinex",
+            Run::Simple => "simple",
+        }
+    }
+}
+
+/// Writes every generated scene's truth files into `dir/<scene name>/`.
+pub fn write_scenes(dir: &Path, size: usize) -> Result<(), Error> {
+    for (index, name) in scenes::scene_names().iter().enumerate() {
+        let folder = dir.join(name);
+        io::create_dir(&folder)?;
+        for (file, bytes) in Truth::from(scenes::scene(index, size)).to_pngs() {
+            io::write(&folder.join(file), &bytes)?;
+        }
+    }
+    eprintln!(
+        "wrote {} scenes of {size}² to {}",
+        scenes::scene_names().len(),
+        dir.display()
+    );
+    Ok(())
+}
+
+/// One run's scores.
+struct Row {
+    scene: String,
+    run: Run,
+    budget: u32,
+    /// The image's own error against the true albedo.
+    image_error: f32,
+    scores: LayerScores,
+    mse: f32,
+    seconds: f64,
+}
+
+const CSV_HEADER: &str = "scene,method,budget,image_albedo_simse,albedo_simse,albedo_ratio,shade_simse,light_simse,highlight_coverage,shadow_in_albedo,edit_mse,mse,seconds";
+
+fn optional(v: Option<f32>) -> String {
+    v.map(|v| format!("{v:.4}")).unwrap_or_default()
+}
+
+impl Row {
+    fn csv(&self) -> String {
+        let s = &self.scores;
+        format!(
+            "{},{},{},{:.6},{:.6},{:.3},{:.6},{:.6},{},{},{},{:.6},{:.2}",
+            self.scene,
+            self.run.name(),
+            self.budget,
+            self.image_error,
+            s.albedo,
+            s.albedo / self.image_error,
+            s.shade,
+            s.light,
+            optional(s.highlight_coverage),
+            optional(s.shadow_in_albedo),
+            s.edit.map(|v| format!("{v:.6}")).unwrap_or_default(),
+            self.mse,
+            self.seconds,
+        )
+    }
+}
+
+/// Scene directories among `inputs`: each input that holds the required truth files, else its
+/// subdirectories that do, in name order.
+fn scene_dirs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, Error> {
+    let is_scene = |dir: &Path| TRUTH_FILES[..4].iter().all(|f| dir.join(f).is_file());
+    let mut out = Vec::new();
+    for input in inputs {
+        if is_scene(input) {
+            out.push(input.clone());
+        } else if input.is_dir() {
+            out.extend(io::list_dir(input)?.into_iter().filter(|d| is_scene(d)));
+        } else {
+            return Err(Error::Truth(format!(
+                "{}: not a directory",
+                input.display()
+            )));
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::NoScenes);
+    }
+    Ok(out)
+}
+
+pub fn run(args: &Args) -> Result<(), Error> {
+    let dirs = scene_dirs(&args.inputs)?;
+    let mut rows = Vec::new();
+    let mut maps =
+        String::from("\n| scene | image | Retinex map | intrinsic map |\n|---|---|---|---|\n");
+    for dir in &dirs {
+        let truth = Truth::read(dir).map_err(Error::Truth)?;
+        let name = dir
+            .file_name()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let image_error = intrinsic::image_error(&truth);
+        let retinex = AlbedoEstimate::Retinex.map(&truth.image);
+        let _ = writeln!(
+            maps,
+            "| {name} | {image_error:.5} | {:.5} | {:.5} |",
+            intrinsic::map_error(&retinex, &truth),
+            intrinsic::map_error(&AlbedoEstimate::Intrinsic.map(&truth.image), &truth),
+        );
+        for &budget in &args.paths {
+            for run in RUNS {
+                let mut params = params_for(args, budget);
+                params.max_size = params
+                    .max_size
+                    .max(truth.image.width.max(truth.image.height) as u32);
+                params.mode = if run == Run::Simple {
+                    Mode::Simple
+                } else {
+                    Mode::Photo
+                };
+                let rgb = |image| image::DynamicImage::ImageRgb8(synth::to_rgb8(image));
+                let inputs = Inputs {
+                    image: rgb(&truth.image),
+                    albedo: (run == Run::PhotoRetinex).then(|| rgb(&retinex)),
+                    masks: Masks::None,
+                };
+                let started = Instant::now();
+                let output = pipeline::run(&inputs, &params, &Quiet, &AtomicBool::new(false))
+                    .map_err(|source| Error::Pipeline {
+                        path: dir.clone(),
+                        source,
+                    })?;
+                let seconds = started.elapsed().as_secs_f64();
+                let scores = intrinsic::score(&output.scene, &truth);
+                let mse = covec::eval::quality(&composite(&output.scene), &truth.image).mse;
+                let row = Row {
+                    scene: name.clone(),
+                    run,
+                    budget,
+                    image_error,
+                    scores,
+                    mse,
+                    seconds,
+                };
+                eprintln!("{}", row.csv());
+                rows.push(row);
+            }
+        }
+    }
+    let mut csv = format!("{CSV_HEADER}\n");
+    for row in &rows {
+        csv.push_str(&row.csv());
+        csv.push('\n');
+    }
+    match &args.out {
+        Some(path) => io::write(path, csv.as_bytes())?,
+        None => print!("{csv}"),
+    }
+    eprint!("{maps}{}", summary(&rows));
+    Ok(())
+}
+
+/// Per scene and budget: the albedo ratio, highlight coverage, shadow share and edit error of
+/// each run side by side.
+fn summary(rows: &[Row]) -> String {
+    let mut out = String::from(
+        "\n| scene | paths | albedo siMSE ×image (photo / Retinex / simple) | highlights covered | shadow in albedo (photo / Retinex) | edit MSE K=4 (photo / Retinex / simple) |\n|---|---|---|---|---|---|\n",
+    );
+    for photo in rows.iter().filter(|r| r.run == Run::Photo) {
+        let find = |run: Run| {
+            rows.iter()
+                .find(|r| r.run == run && r.scene == photo.scene && r.budget == photo.budget)
+        };
+        let (Some(retinex), Some(simple)) = (find(Run::PhotoRetinex), find(Run::Simple)) else {
+            continue;
+        };
+        let ratio = |r: &Row| r.scores.albedo / r.image_error;
+        let percent = |v: Option<f32>| v.map(|v| format!("{:.0}%", 100.0 * v)).unwrap_or_default();
+        let edit = |r: &Row| r.scores.edit.map(|v| format!("{v:.5}")).unwrap_or_default();
+        let _ = writeln!(
+            out,
+            "| {} | {} | {:.2} / {:.2} / {:.2} | {} | {} / {} | {} / {} / {} |",
+            photo.scene,
+            photo.budget,
+            ratio(photo),
+            ratio(retinex),
+            ratio(simple),
+            percent(photo.scores.highlight_coverage),
+            percent(photo.scores.shadow_in_albedo),
+            percent(retinex.scores.shadow_in_albedo),
+            edit(photo),
+            edit(retinex),
+            edit(simple),
+        );
+    }
+    out
+}

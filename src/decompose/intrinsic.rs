@@ -1,0 +1,324 @@
+//! Classical intrinsic decomposition: the albedo map of a bare photo, standing in for the
+//! paper's network (Careaga & Aksoy 2024) when the client sends none.
+//!
+//! The classical insight (Color Retinex; Grosse et al. 2009; the reflectance grouping of Bell
+//! et al. 2014, Shen & Yeo 2011, Zhao et al. 2012): under one illuminant, a change of intensity
+//! at constant chromaticity is shading, a change of chromaticity is albedo. So:
+//! 1. **Illuminant.** Grey-edge (van de Weijer et al. 2007, Minkowski p = 6): the mean edge is
+//!    achromatic, so the illuminant's colour is the per-channel norm of the gradients. The image
+//!    is divided by it (von Kries) so surface chromaticity can be compared across the image.
+//! 2. **Superpixels.** Felzenszwalb-Huttenlocher on the corrected image cuts at every edge,
+//!    shading and shadow boundaries included.
+//! 3. **Reflectance grouping.** Adjacent superpixels of nearly the same chromaticity are one
+//!    surface: a sphere's lit and dark sides and a floor inside and outside a cast shadow join,
+//!    across the shadow's boundary. The tolerance widens in the dark, where chromaticity is noisy.
+//! 4. **Highlights** (dichromatic model, Shafer 1985): a small bright group whose colour is its
+//!    neighbour's body colour plus a share of the (corrected, so white) illuminant is that
+//!    neighbour's specular highlight, and joins it; the excess goes to the light layer later.
+//! 5. **Albedo.** Each surface gets one flat colour: that of its lit part (the 75th-95th
+//!    luminance percentiles: fully lit, highlights excluded), in the image's own colours, so
+//!    that image / albedo, the shade, is near 1 where lit and near-grey in shadow.
+//!
+//! Departures: albedo is flat per surface, so texture of constant chromaticity goes to the
+//! shade layer; surfaces of the same chromaticity that touch (a white wall on a grey floor)
+//! join; a shadow lit by a differently coloured sky changes chromaticity and stays apart.
+
+use super::albedo::intensity;
+use super::segment::{DisjointSets, blur, felzenszwalb};
+use crate::render::Image;
+
+/// Minkowski norm of the grey-edge illuminant estimate.
+const GREY_EDGE_P: i32 = 6;
+/// No channel of the estimated illuminant falls below this share of the largest: keeps a
+/// saturated scene (all foliage) from being read as a green light.
+const MIN_ILLUMINANT_CHANNEL: f32 = 0.25;
+/// Felzenszwalb granularity on the corrected image (colour distances in [0, √3]); finer than
+/// the segmentation's, since grouping joins the pieces again.
+const SUPERPIXEL_K: f32 = 0.25;
+/// Chromaticity angle (radians) under which two adjacent superpixels are one surface, plus
+/// [`DARK_TOLERANCE`] / luminance for noise in the dark.
+const CHROMA_TOLERANCE: f32 = 0.07;
+const DARK_TOLERANCE: f32 = 0.01;
+/// A highlight adds at least this much illuminant (in corrected units) to its body colour.
+const MIN_SPECULAR: f32 = 0.04;
+/// A highlight group covers at most this share of the canvas.
+const MAX_HIGHLIGHT_SHARE: f32 = 0.02;
+/// The dichromatic fit may miss a highlight's colour by this share of its norm.
+const DICHROMATIC_RESIDUAL: f32 = 0.08;
+/// The luminance percentiles whose pixels give a surface's albedo.
+const LIT_PERCENTILES: (f32, f32) = (0.75, 0.95);
+
+/// The albedo map of `image`: one flat colour per surface; see the module documentation.
+pub fn albedo_map(image: &Image) -> Image {
+    let (w, h) = (image.width, image.height);
+    if w * h == 0 {
+        return image.clone();
+    }
+    let illuminant = grey_edge_illuminant(image);
+    let corrected = Image {
+        data: image
+            .data
+            .iter()
+            .enumerate()
+            .map(|(k, &v)| v / illuminant[k % 3])
+            .collect(),
+        ..image.clone()
+    };
+    let labels = felzenszwalb(&blur(&corrected), SUPERPIXEL_K, (w * h / 4000).max(4));
+    let groups = group_surfaces(&corrected, &labels);
+    let mut map = image.clone();
+    for members in surfaces(&groups) {
+        let colour = lit_colour(image, &members);
+        for &i in &members {
+            map.data[3 * i..3 * i + 3].copy_from_slice(&colour);
+        }
+    }
+    map
+}
+
+/// The illuminant's colour by grey-edge, largest channel 1.
+pub fn grey_edge_illuminant(image: &Image) -> [f32; 3] {
+    let (w, h) = (image.width, image.height);
+    let smooth = blur(image);
+    let mut norm = [0f64; 3];
+    for y in 0..h {
+        for x in 0..w {
+            let i = 3 * (y * w + x);
+            let right = 3 * (y * w + (x + 1).min(w - 1));
+            let down = 3 * ((y + 1).min(h - 1) * w + x);
+            for c in 0..3 {
+                let gx = smooth.data[right + c] - smooth.data[i + c];
+                let gy = smooth.data[down + c] - smooth.data[i + c];
+                norm[c] += f64::from(gx.hypot(gy)).powi(GREY_EDGE_P);
+            }
+        }
+    }
+    let e = norm.map(|n| n.powf(1.0 / f64::from(GREY_EDGE_P)) as f32);
+    let max = e.iter().copied().fold(0.0, f32::max);
+    if max <= 0.0 {
+        return [1.0; 3];
+    }
+    e.map(|v| (v / max).max(MIN_ILLUMINANT_CHANNEL))
+}
+
+/// Per-superpixel statistics during grouping.
+#[derive(Clone, Default)]
+struct Piece {
+    sum: [f64; 3],
+    count: f64,
+}
+
+impl Piece {
+    fn mean(&self) -> [f32; 3] {
+        self.sum.map(|s| (s / self.count.max(1.0)) as f32)
+    }
+}
+
+/// Chromaticity: the colour's direction.
+fn chroma(c: [f32; 3]) -> [f32; 3] {
+    let n = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt().max(1e-6);
+    c.map(|v| v / n)
+}
+
+fn angle(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let (a, b) = (chroma(a), chroma(b));
+    (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+        .clamp(-1.0, 1.0)
+        .acos()
+}
+
+/// Surface groups: a root per pixel.
+struct Groups {
+    root: Vec<usize>,
+}
+
+/// Joins superpixels into surfaces (steps 3 and 4).
+fn group_surfaces(corrected: &Image, labels: &[u32]) -> Groups {
+    let (w, h) = (corrected.width, corrected.height);
+    let n = labels.iter().max().map_or(0, |&m| m as usize + 1);
+    let mut pieces = vec![Piece::default(); n];
+    let mut adjacent = std::collections::BTreeSet::new();
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let p = &mut pieces[labels[i] as usize];
+            p.count += 1.0;
+            for c in 0..3 {
+                p.sum[c] += f64::from(corrected.data[3 * i + c]);
+            }
+            for j in [(x + 1 < w).then(|| i + 1), (y + 1 < h).then(|| i + w)]
+                .into_iter()
+                .flatten()
+            {
+                let (a, b) = (labels[i], labels[j]);
+                if a != b {
+                    adjacent.insert((a.min(b) as usize, a.max(b) as usize));
+                }
+            }
+        }
+    }
+    let mut sets = DisjointSets::new(n);
+    let mut stats = pieces.clone();
+    // Step 3, closest chromaticities first; statistics follow the growing groups.
+    let mut edges: Vec<(f32, usize, usize)> = adjacent
+        .iter()
+        .map(|&(a, b)| (angle(pieces[a].mean(), pieces[b].mean()), a, b))
+        .collect();
+    edges.sort_by(|x, y| x.0.total_cmp(&y.0));
+    for &(_, a, b) in &edges {
+        let (ra, rb) = (sets.find(a), sets.find(b));
+        if ra == rb {
+            continue;
+        }
+        let (ma, mb) = (stats[ra].mean(), stats[rb].mean());
+        let luminance = intensity(ma).min(intensity(mb)).max(0.02);
+        if angle(ma, mb) <= CHROMA_TOLERANCE + DARK_TOLERANCE / luminance {
+            let root = sets.union(ra, rb);
+            let other = if root == ra { rb } else { ra };
+            let moved = stats[other].clone();
+            for c in 0..3 {
+                stats[root].sum[c] += moved.sum[c];
+            }
+            stats[root].count += moved.count;
+        }
+    }
+    // Step 4: small bright groups that are a neighbour's body colour plus illuminant.
+    let canvas = (w * h) as f64;
+    let mut neighbours: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+    for &(a, b) in &adjacent {
+        let (ra, rb) = (sets.find(a), sets.find(b));
+        if ra != rb {
+            neighbours.entry(ra).or_default().push(rb);
+            neighbours.entry(rb).or_default().push(ra);
+        }
+    }
+    let mut joins = Vec::new();
+    for (&group, around) in &neighbours {
+        if stats[group].count > f64::from(MAX_HIGHLIGHT_SHARE) * canvas {
+            continue;
+        }
+        let colour = stats[group].mean();
+        let best = around
+            .iter()
+            .filter(|&&n| stats[n].count > stats[group].count)
+            .filter_map(|&n| specular_excess(colour, stats[n].mean()).map(|fit| (fit, n)))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        if let Some((_, body)) = best {
+            joins.push((group, body));
+        }
+    }
+    for (group, body) in joins {
+        let (rg, rb) = (sets.find(group), sets.find(body));
+        if rg != rb {
+            sets.union(rg, rb);
+        }
+    }
+    Groups {
+        root: labels.iter().map(|&l| sets.find(l as usize)).collect(),
+    }
+}
+
+/// If `colour` = a·`body` + s·white with s ≥ [`MIN_SPECULAR`], a > 0, and it is brighter than
+/// the body, the relative residual of that fit; else `None`.
+fn specular_excess(colour: [f32; 3], body: [f32; 3]) -> Option<f32> {
+    if intensity(colour) <= intensity(body) {
+        return None;
+    }
+    // Least squares for [body, white] · (a, s) = colour.
+    let white = [1.0f32; 3];
+    let dot = |u: [f32; 3], v: [f32; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    let (bb, bw, ww) = (dot(body, body), dot(body, white), dot(white, white));
+    let (bc, wc) = (dot(body, colour), dot(white, colour));
+    let det = bb * ww - bw * bw;
+    if det.abs() < 1e-8 {
+        return None; // a grey body: a highlight is just brighter grey, not told from albedo
+    }
+    let a = (bc * ww - wc * bw) / det;
+    let s = (bb * wc - bw * bc) / det;
+    if a <= 0.0 || s < MIN_SPECULAR {
+        return None;
+    }
+    let fit = [0, 1, 2].map(|c| a * body[c] + s - colour[c]);
+    let residual = dot(fit, fit).sqrt() / dot(colour, colour).sqrt().max(1e-6);
+    (residual <= DICHROMATIC_RESIDUAL).then_some(residual)
+}
+
+/// The pixel indices of each surface.
+fn surfaces(groups: &Groups) -> Vec<Vec<usize>> {
+    let mut index = std::collections::HashMap::new();
+    let mut out: Vec<Vec<usize>> = Vec::new();
+    for (i, &root) in groups.root.iter().enumerate() {
+        let k = *index.entry(root).or_insert_with(|| {
+            out.push(Vec::new());
+            out.len() - 1
+        });
+        out[k].push(i);
+    }
+    out
+}
+
+/// Mean colour of the pixels of `members` between the [`LIT_PERCENTILES`] of luminance.
+fn lit_colour(image: &Image, members: &[usize]) -> [f32; 3] {
+    let pixel = |i: usize| [0, 1, 2].map(|c| image.data[3 * i + c]);
+    let mut by_luminance: Vec<(f32, usize)> =
+        members.iter().map(|&i| (intensity(pixel(i)), i)).collect();
+    by_luminance.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let n = by_luminance.len();
+    let lo = ((n as f32 * LIT_PERCENTILES.0) as usize).min(n - 1);
+    let hi = ((n as f32 * LIT_PERCENTILES.1) as usize).clamp(lo + 1, n);
+    let mut sum = [0f64; 3];
+    for &(_, i) in &by_luminance[lo..hi] {
+        for (s, v) in sum.iter_mut().zip(pixel(i)) {
+            *s += f64::from(v);
+        }
+    }
+    sum.map(|s| (s / (hi - lo) as f64) as f32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::scale_invariant_mse;
+    use crate::synth::scenes::{scene, scene_names};
+
+    #[test]
+    fn a_warm_light_is_estimated_warm() {
+        let s = scene(4, 64);
+        let e = grey_edge_illuminant(&s.image);
+        assert!(e[0] > e[2], "{e:?}");
+    }
+
+    #[test]
+    fn the_map_is_closer_to_the_true_albedo_than_the_image_on_the_generated_scenes() {
+        let mut ratios = Vec::new();
+        for index in 0..scene_names().len() {
+            let s = scene(index, 96);
+            let map = albedo_map(&s.image);
+            ratios.push(
+                scale_invariant_mse(&map, &s.albedo) / scale_invariant_mse(&s.image, &s.albedo),
+            );
+        }
+        let mean = ratios.iter().sum::<f32>() / ratios.len() as f32;
+        assert!(mean < 0.6, "{ratios:?}");
+    }
+
+    #[test]
+    fn a_highlight_on_a_coloured_surface_joins_the_surface() {
+        // A red square with a white-ish highlight blob: body · 1 + 0.4 · white.
+        let (w, h) = (48, 48);
+        let body = [0.7f32, 0.2, 0.15];
+        let mut image = Image::filled(w, h, [0.3, 0.5, 0.7]);
+        for y in 8..40 {
+            for x in 8..40 {
+                let d2 = (x as f32 - 20.0).powi(2) + (y as f32 - 20.0).powi(2);
+                let s = if d2 < 16.0 { 0.3 } else { 0.0 };
+                let px = body.map(|b| (b + s).min(1.0));
+                image.data[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&px);
+            }
+        }
+        let map = albedo_map(&image);
+        let at = map.pixel(20, 20);
+        let body_px = map.pixel(34, 34);
+        assert_eq!(at, body_px, "highlight {at:?} vs body {body_px:?}");
+    }
+}
