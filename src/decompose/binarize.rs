@@ -13,38 +13,64 @@ use crate::render::Image;
 /// Shadow masks of `target` inside each of `regions`, components of at least `min_area`
 /// pixels, scored by the squared error that a flat intensity inside them removes (×3 for the
 /// three channels, to compare with colour segmentation gains). Unsorted.
-pub fn binarize(target: &Image, regions: &[Mask], min_area: usize) -> Vec<Candidate> {
+///
+/// With `levels` > 1 each region's shadow and lit parts are binarised again at their own
+/// means (a documented departure, issue 11): a flat-per-surface albedo map leaves a whole
+/// surface's shading to the illumination layer, and a sphere's core shadow and terminator are
+/// two levels of it, not one.
+pub fn binarize(target: &Image, regions: &[Mask], min_area: usize, levels: u32) -> Vec<Candidate> {
     let lum: Vec<f32> = (0..target.width * target.height)
         .map(|i| intensity(target.pixel(i % target.width, i / target.width)))
         .collect();
     let mut out = Vec::new();
     for region in regions.iter().filter(|r| !r.is_empty()) {
-        let total: f64 = region.indices().map(|i| f64::from(lum[i])).sum();
-        let n = region.area() as f64;
-        let threshold = (total / n) as f32;
-        let shadow = Mask::from_fn(region.width(), region.height(), |x, y| {
-            region.contains(x, y) && lum[y * region.width() + x] <= threshold
-        });
-        // A flat region has every pixel at the threshold: nothing to separate.
-        if shadow.area() == region.area() {
-            continue;
-        }
-        for component in shadow.components(min_area) {
-            let component = component.fill_holes();
-            let inside: f64 = component.indices().map(|i| f64::from(lum[i])).sum();
-            let (n_in, n_out) = (
-                component.area() as f64,
-                (n - component.area() as f64).max(1.0),
-            );
-            let (mean_in, mean_out) = (inside / n_in, (total - inside) / n_out);
-            let gain = 3.0 * n_in * n_out / (n_in + n_out) * (mean_in - mean_out).powi(2);
-            out.push(Candidate {
-                mask: component,
-                gain: gain as f32,
-            });
-        }
+        threshold_region(&lum, region, min_area, levels, &mut out);
     }
     out
+}
+
+/// One region's shadow components at its mean, then (for `levels` > 1) both halves again.
+fn threshold_region(
+    lum: &[f32],
+    region: &Mask,
+    min_area: usize,
+    levels: u32,
+    out: &mut Vec<Candidate>,
+) {
+    if levels == 0 || region.area() < 2 * min_area {
+        return;
+    }
+    let total: f64 = region.indices().map(|i| f64::from(lum[i])).sum();
+    let n = region.area() as f64;
+    let threshold = (total / n) as f32;
+    let shadow = Mask::from_fn(region.width(), region.height(), |x, y| {
+        region.contains(x, y) && lum[y * region.width() + x] <= threshold
+    });
+    // A flat region has every pixel at the threshold: nothing to separate.
+    if shadow.area() == region.area() {
+        return;
+    }
+    if levels > 1 {
+        let lit = Mask::from_fn(region.width(), region.height(), |x, y| {
+            region.contains(x, y) && !shadow.contains(x, y)
+        });
+        threshold_region(lum, &shadow, min_area, levels - 1, out);
+        threshold_region(lum, &lit, min_area, levels - 1, out);
+    }
+    for component in shadow.components(min_area) {
+        let component = component.fill_holes();
+        let inside: f64 = component.indices().map(|i| f64::from(lum[i])).sum();
+        let (n_in, n_out) = (
+            component.area() as f64,
+            (n - component.area() as f64).max(1.0),
+        );
+        let (mean_in, mean_out) = (inside / n_in, (total - inside) / n_out);
+        let gain = 3.0 * n_in * n_out / (n_in + n_out) * (mean_in - mean_out).powi(2);
+        out.push(Candidate {
+            mask: component,
+            gain: gain as f32,
+        });
+    }
 }
 
 #[cfg(test)]
@@ -74,7 +100,7 @@ mod tests {
             Mask::from_fn(w, h, |x, _| x < 20),
             Mask::from_fn(w, h, |x, _| x >= 20),
         ];
-        let mut shadows: Vec<Mask> = binarize(&image, &regions, 4)
+        let mut shadows: Vec<Mask> = binarize(&image, &regions, 4, 1)
             .into_iter()
             .map(|c| c.mask)
             .collect();

@@ -43,6 +43,8 @@ const DARK_TOLERANCE: f32 = 0.01;
 const MIN_SPECULAR: f32 = 0.04;
 /// A highlight group covers at most this share of the canvas.
 const MAX_HIGHLIGHT_SHARE: f32 = 0.02;
+/// Rounds of highlight joining: each peels one ring of a highlight's superpixels.
+const HIGHLIGHT_PASSES: usize = 6;
 /// The dichromatic fit may miss a highlight's colour by this share of its norm.
 const DICHROMATIC_RESIDUAL: f32 = 0.08;
 /// The luminance percentiles whose pixels give a surface's albedo.
@@ -127,6 +129,25 @@ fn angle(a: [f32; 3], b: [f32; 3]) -> f32 {
         .acos()
 }
 
+/// Superpixels joined into groups, with each root's statistics.
+struct Grouping {
+    sets: DisjointSets,
+    stats: Vec<Piece>,
+}
+
+impl Grouping {
+    /// Joins two roots, adding their statistics.
+    fn join(&mut self, a: usize, b: usize) {
+        let root = self.sets.union(a, b);
+        let other = if root == a { b } else { a };
+        let moved = self.stats[other].clone();
+        for c in 0..3 {
+            self.stats[root].sum[c] += moved.sum[c];
+        }
+        self.stats[root].count += moved.count;
+    }
+}
+
 /// Surface groups: a root per pixel.
 struct Groups {
     root: Vec<usize>,
@@ -157,8 +178,10 @@ fn group_surfaces(corrected: &Image, labels: &[u32]) -> Groups {
             }
         }
     }
-    let mut sets = DisjointSets::new(n);
-    let mut stats = pieces.clone();
+    let mut groups = Grouping {
+        sets: DisjointSets::new(n),
+        stats: pieces.clone(),
+    };
     // Step 3, closest chromaticities first; statistics follow the growing groups.
     let mut edges: Vec<(f32, usize, usize)> = adjacent
         .iter()
@@ -166,55 +189,59 @@ fn group_surfaces(corrected: &Image, labels: &[u32]) -> Groups {
         .collect();
     edges.sort_by(|x, y| x.0.total_cmp(&y.0));
     for &(_, a, b) in &edges {
-        let (ra, rb) = (sets.find(a), sets.find(b));
+        let (ra, rb) = (groups.sets.find(a), groups.sets.find(b));
         if ra == rb {
             continue;
         }
-        let (ma, mb) = (stats[ra].mean(), stats[rb].mean());
+        let (ma, mb) = (groups.stats[ra].mean(), groups.stats[rb].mean());
         let luminance = intensity(ma).min(intensity(mb)).max(0.02);
         if angle(ma, mb) <= CHROMA_TOLERANCE + DARK_TOLERANCE / luminance {
-            let root = sets.union(ra, rb);
-            let other = if root == ra { rb } else { ra };
-            let moved = stats[other].clone();
-            for c in 0..3 {
-                stats[root].sum[c] += moved.sum[c];
-            }
-            stats[root].count += moved.count;
+            groups.join(ra, rb);
         }
     }
-    // Step 4: small bright groups that are a neighbour's body colour plus illuminant.
+    // Step 4, from the outside in: a highlight's rim joins its body first, then its core,
+    // which only then touches the body.
     let canvas = (w * h) as f64;
-    let mut neighbours: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
-    for &(a, b) in &adjacent {
-        let (ra, rb) = (sets.find(a), sets.find(b));
-        if ra != rb {
-            neighbours.entry(ra).or_default().push(rb);
-            neighbours.entry(rb).or_default().push(ra);
+    for _ in 0..HIGHLIGHT_PASSES {
+        let mut neighbours: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+        for &(a, b) in &adjacent {
+            let (ra, rb) = (groups.sets.find(a), groups.sets.find(b));
+            if ra != rb {
+                neighbours.entry(ra).or_default().push(rb);
+                neighbours.entry(rb).or_default().push(ra);
+            }
         }
-    }
-    let mut joins = Vec::new();
-    for (&group, around) in &neighbours {
-        if stats[group].count > f64::from(MAX_HIGHLIGHT_SHARE) * canvas {
-            continue;
+        let mut joins = Vec::new();
+        for (&group, around) in &neighbours {
+            let count = groups.stats[group].count;
+            if count > f64::from(MAX_HIGHLIGHT_SHARE) * canvas {
+                continue;
+            }
+            let colour = groups.stats[group].mean();
+            let best = around
+                .iter()
+                .filter(|&&n| groups.stats[n].count > count)
+                .filter_map(|&n| specular_excess(colour, groups.stats[n].mean()).map(|f| (f, n)))
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((_, body)) = best {
+                joins.push((group, body));
+            }
         }
-        let colour = stats[group].mean();
-        let best = around
-            .iter()
-            .filter(|&&n| stats[n].count > stats[group].count)
-            .filter_map(|&n| specular_excess(colour, stats[n].mean()).map(|fit| (fit, n)))
-            .min_by(|a, b| a.0.total_cmp(&b.0));
-        if let Some((_, body)) = best {
-            joins.push((group, body));
+        if joins.is_empty() {
+            break;
         }
-    }
-    for (group, body) in joins {
-        let (rg, rb) = (sets.find(group), sets.find(body));
-        if rg != rb {
-            sets.union(rg, rb);
+        for (group, body) in joins {
+            let (rg, rb) = (groups.sets.find(group), groups.sets.find(body));
+            if rg != rb {
+                groups.join(rg, rb);
+            }
         }
     }
     Groups {
-        root: labels.iter().map(|&l| sets.find(l as usize)).collect(),
+        root: labels
+            .iter()
+            .map(|&l| groups.sets.find(l as usize))
+            .collect(),
     }
 }
 
@@ -307,7 +334,7 @@ mod tests {
         // A red square with a white-ish highlight blob: body · 1 + 0.4 · white.
         let (w, h) = (48, 48);
         let body = [0.7f32, 0.2, 0.15];
-        let mut image = Image::filled(w, h, [0.3, 0.5, 0.7]);
+        let mut image = Image::filled(w, h, [0.5, 0.5, 0.5]);
         for y in 8..40 {
             for x in 8..40 {
                 let d2 = (x as f32 - 20.0).powi(2) + (y as f32 - 20.0).powi(2);

@@ -6,7 +6,7 @@ use super::params::{Inputs, Masks, Mode, Params, ResolvedMode};
 use crate::decompose::mask::Mask;
 use crate::decompose::segment::{self, Candidate};
 use crate::decompose::{
-    SIMPLE_PALETTE_COVERAGE, albedo, label_masks, min_mask_area, palette_coverage, sample_mask,
+    SIMPLE_PALETTE_COVERAGE, intrinsic, label_masks, min_mask_area, palette_coverage, sample_mask,
     score_masks,
 };
 use crate::imageio::{resize_rgb, working_size};
@@ -14,6 +14,11 @@ use crate::render::Image;
 
 /// How many segmentation masks the decompose stage offers the init stage to choose from.
 const SEGMENT_CANDIDATES: usize = 128;
+
+/// Segmentation masks of our own albedo map that remove less squared error than this are
+/// splits of one flat surface (the map is flat per surface): their shading, if any, belongs
+/// to the illumination layer, so they seed no albedo path.
+const MIN_ALBEDO_GAIN: f32 = 1e-5;
 
 /// What the init stage starts from.
 pub(crate) struct Decomposition {
@@ -47,9 +52,7 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
     let albedo = match (&inputs.albedo, mode) {
         (Some(map), _) => resize_rgb(map, w, h),
         (None, ResolvedMode::Simple) => target.clone(),
-        (None, ResolvedMode::Photo) => {
-            albedo::albedo_from_shading(&target, &albedo::estimate_shading(&target))
-        }
+        (None, ResolvedMode::Photo) => intrinsic::albedo_map(&target),
     };
     let (w, h) = (w as usize, h as usize);
     let min_area = min_mask_area(w, h);
@@ -68,6 +71,9 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
         }
         None => segment::segment(&albedo, SEGMENT_CANDIDATES)
             .into_iter()
+            .filter(|c| {
+                mode == ResolvedMode::Simple || inputs.albedo.is_some() || c.gain >= MIN_ALBEDO_GAIN
+            })
             .flat_map(|c| {
                 c.mask
                     .fill_holes()

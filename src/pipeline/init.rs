@@ -51,8 +51,12 @@ pub struct Budget {
 /// Share of the budget for structure paths, both layers together (LayerVec's 0.4); the rest is
 /// left to the refinement stage.
 pub const STRUCTURE_SHARE: f32 = 0.4;
-/// Share of the structure paths that go to the albedo layer in photo mode.
-pub const ALBEDO_SHARE: f32 = 0.6;
+/// Share of the structure paths that go to the albedo layer in photo mode. Below half since
+/// issue 11: the albedo map is flat per surface, so a few paths hold it, and the shading
+/// inside surfaces needs the rest.
+pub const ALBEDO_SHARE: f32 = 0.4;
+/// Binarisation levels per albedo region in photo mode (see [`binarize`]).
+pub const PHOTO_BINARISATION_LEVELS: u32 = 2;
 
 impl Budget {
     pub fn new(total: usize, mode: ResolvedMode) -> Self {
@@ -112,7 +116,11 @@ pub(crate) fn run(
     let mut illumination_masks = Vec::new();
     if budget.albedo > 1 || mode == ResolvedMode::Photo {
         let regions = visible_parts(&albedo_masks, w, h);
-        let shadows = sorted(binarize(&target, &regions, min_area));
+        let levels = match mode {
+            ResolvedMode::Simple => 1,
+            ResolvedMode::Photo => PHOTO_BINARISATION_LEVELS,
+        };
+        let shadows = sorted(binarize(&target, &regions, min_area, levels));
         match mode {
             ResolvedMode::Simple => {
                 let mut all = candidates.clone();

@@ -192,7 +192,7 @@ impl<'a> Optimisation<'a> {
         } else {
             0
         };
-        let settings = &self.settings.structure;
+        let (settings, mode) = (&self.settings.structure, self.mode);
         self.coarse(|small, small_target| {
             optimise_reconstruction(
                 small,
@@ -203,6 +203,7 @@ impl<'a> Optimisation<'a> {
                     total,
                 },
                 settings,
+                mode,
                 stage,
             )
         })?;
@@ -215,6 +216,7 @@ impl<'a> Optimisation<'a> {
                 total,
             },
             settings,
+            mode,
             stage,
         )?;
         let after = if total > 0 {
@@ -294,6 +296,7 @@ impl<'a> Optimisation<'a> {
             &self.target,
             self.params.iterations.polish,
             &self.settings.polish,
+            self.mode,
             stage,
         )?;
         self.record(stage, before, after);

@@ -278,6 +278,21 @@ pub(crate) fn hold_albedo_base(grads: &mut [PathGrad]) {
     }
 }
 
+/// What the stages after init may change in the albedo layer: the base's geometry and opacity
+/// never ([`hold_albedo_base`]); in photo mode no path's colour or opacity either (a
+/// documented departure, issue 11). Left free, `A·S` lets an albedo path darken or fade to
+/// explain a shadow or a shading gradient, exactly the lighting the albedo layer must not
+/// hold; the fills stay those of the albedo map, and geometry still trains so edges follow
+/// the image.
+pub(crate) fn hold_albedo(grads: &mut [PathGrad], mode: ResolvedMode) {
+    hold_albedo_base(grads);
+    if mode == ResolvedMode::Photo {
+        for g in grads {
+            (g.color, g.opacity) = ([0.0; 3], 0.0);
+        }
+    }
+}
+
 /// The rasteriser at one working size, with helpers for the compositing the stages need.
 pub(crate) struct Canvas {
     pub raster: Rasterizer,

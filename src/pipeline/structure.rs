@@ -7,8 +7,8 @@
 
 use super::coarse::{Plateau, PlateauSettings};
 use super::init::LayerGroups;
-use super::params::Error;
-use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo_base};
+use super::params::{Error, ResolvedMode};
+use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo, hold_albedo_base};
 use crate::decompose::mask::Mask;
 use crate::optim::loss::{mse, overlap_penalty};
 use crate::optim::rng::Rng;
@@ -128,9 +128,7 @@ pub(crate) fn optimise_structure(
                 loss += structure_loss(&mut canvas, paths, group, settings, grads, &mut scratch);
             }
             // The structure loss shapes geometry only; colours are fit by the reconstruction.
-            for g in grads.iter_mut() {
-                g.color = [0.0; 3];
-            }
+            hold_colours(grads);
             if kind == LayerKind::Albedo {
                 hold_albedo_base(grads);
             }
@@ -145,11 +143,13 @@ pub(crate) fn optimise_structure(
 /// Runs the span's iterations of the shared reconstruction loss ‖I − R(A)·R(I)‖² on both
 /// layers, one Adam per layer, stopping early once the loss has plateaued. Returns the loss
 /// before and after.
+/// The albedo layer is held as [`hold_albedo`] says.
 pub(crate) fn optimise_reconstruction(
     scene: &mut Scene,
     target: &Image,
     span: IterationSpan,
     settings: &StructureSettings,
+    mode: ResolvedMode,
     stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
@@ -172,13 +172,20 @@ pub(crate) fn optimise_reconstruction(
         if plateau.stop_after(loss) {
             break;
         }
-        hold_albedo_base(&mut grads_a);
+        hold_albedo(&mut grads_a, mode);
         adam_albedo.step(&mut scene.albedo.paths, &grads_a);
         adam_illum.step(&mut scene.shade.paths, &grads_i);
         stage.iteration(span.start + it + 1, span.total, Some(loss))?;
     }
     let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
     Ok([initial, after])
+}
+
+/// Zeroes the colour gradients: the paths keep their fills.
+fn hold_colours(grads: &mut [PathGrad]) {
+    for g in grads {
+        g.color = [0.0; 3];
+    }
 }
 
 /// The albedo and illumination Adams (colours within [0, 1] and [0, illumination cap]).
