@@ -39,10 +39,18 @@ const SUPERPIXEL_K: f32 = 0.25;
 /// [`DARK_TOLERANCE`] / luminance for noise in the dark.
 const CHROMA_TOLERANCE: f32 = 0.07;
 const DARK_TOLERANCE: f32 = 0.01;
+/// The dark widening stops here: below a luminance of 0.1 chromaticity says little, and a
+/// black object is not the shadow of the white one beside it.
+const MAX_DARK_EXTRA: f32 = 0.1;
+/// Two groups whose luminances differ by more than this factor are not one surface in light
+/// and shadow: sky and bounce light keep shadows within about a fifth of full light.
+const MAX_SHADING_RATIO: f32 = 5.0;
 /// A highlight adds at least this much illuminant (in corrected units) to its body colour.
 const MIN_SPECULAR: f32 = 0.04;
 /// A highlight group covers at most this share of the canvas.
 const MAX_HIGHLIGHT_SHARE: f32 = 0.02;
+/// A corrected colour with a channel at least this bright may be a clipped highlight.
+const CLIPPED: f32 = 0.97;
 /// Rounds of highlight joining: each peels one ring of a highlight's superpixels.
 const HIGHLIGHT_PASSES: usize = 6;
 /// The dichromatic fit may miss a highlight's colour by this share of its norm.
@@ -194,8 +202,9 @@ fn group_surfaces(corrected: &Image, labels: &[u32]) -> Groups {
             continue;
         }
         let (ma, mb) = (groups.stats[ra].mean(), groups.stats[rb].mean());
-        let luminance = intensity(ma).min(intensity(mb)).max(0.02);
-        if angle(ma, mb) <= CHROMA_TOLERANCE + DARK_TOLERANCE / luminance {
+        let (la, lb) = (intensity(ma).max(0.02), intensity(mb).max(0.02));
+        let tolerance = CHROMA_TOLERANCE + (DARK_TOLERANCE / la.min(lb)).min(MAX_DARK_EXTRA);
+        if la.max(lb) / la.min(lb) <= MAX_SHADING_RATIO && angle(ma, mb) <= tolerance {
             groups.join(ra, rb);
         }
     }
@@ -245,8 +254,8 @@ fn group_surfaces(corrected: &Image, labels: &[u32]) -> Groups {
     }
 }
 
-/// If `colour` = a·`body` + s·white with s ≥ [`MIN_SPECULAR`], a > 0, and it is brighter than
-/// the body, the relative residual of that fit; else `None`.
+/// If `colour` = a·`body` + s·white with s ≥ [`MIN_SPECULAR`], a > 0 (or `colour` clipped),
+/// and it is brighter than the body, the relative residual of that fit; else `None`.
 fn specular_excess(colour: [f32; 3], body: [f32; 3]) -> Option<f32> {
     if intensity(colour) <= intensity(body) {
         return None;
@@ -262,9 +271,13 @@ fn specular_excess(colour: [f32; 3], body: [f32; 3]) -> Option<f32> {
     }
     let a = (bc * ww - wc * bw) / det;
     let s = (bb * wc - bw * bc) / det;
-    if a <= 0.0 || s < MIN_SPECULAR {
+    // A clipped highlight's core is white (a ≈ 0): accepted only when nearly saturated, so a
+    // small white object on a coloured surface keeps its own albedo.
+    let clipped = colour.iter().fold(0.0f32, |m, &v| m.max(v)) >= CLIPPED;
+    if (a <= 0.0 && !clipped) || s < MIN_SPECULAR {
         return None;
     }
+    let a = a.max(0.0);
     let fit = [0, 1, 2].map(|c| a * body[c] + s - colour[c]);
     let residual = dot(fit, fit).sqrt() / dot(colour, colour).sqrt().max(1e-6);
     (residual <= DICHROMATIC_RESIDUAL).then_some(residual)

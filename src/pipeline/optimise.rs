@@ -296,7 +296,6 @@ impl<'a> Optimisation<'a> {
             &self.target,
             self.params.iterations.polish,
             &self.settings.polish,
-            self.mode,
             stage,
         )?;
         self.record(stage, before, after);

@@ -3,8 +3,8 @@
 //! file is optimal for what is displayed rather than for the unclamped two-layer model.
 
 use super::coarse::{Plateau, PlateauSettings};
-use super::params::{Error, ResolvedMode};
-use super::stage::{Canvas, StageRun, hold_albedo};
+use super::params::Error;
+use super::stage::{Canvas, StageRun, hold_albedo_base};
 use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
 use crate::render::Image;
@@ -35,7 +35,6 @@ pub(crate) fn polish(
     target: &Image,
     iterations: u32,
     settings: &PolishSettings,
-    mode: ResolvedMode,
     stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
@@ -85,7 +84,7 @@ pub(crate) fn polish(
                 .raster
                 .backward(paths, kind.base(), &d_layers[k], &mut grads);
             if kind == LayerKind::Albedo {
-                hold_albedo(&mut grads, mode);
+                hold_albedo_base(&mut grads);
             }
             adams[k].step(paths, &grads);
         }

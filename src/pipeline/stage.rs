@@ -278,12 +278,14 @@ pub(crate) fn hold_albedo_base(grads: &mut [PathGrad]) {
     }
 }
 
-/// What the stages after init may change in the albedo layer: the base's geometry and opacity
-/// never ([`hold_albedo_base`]); in photo mode no path's colour or opacity either (a
-/// documented departure, issue 11). Left free, `A·S` lets an albedo path darken or fade to
-/// explain a shadow or a shading gradient, exactly the lighting the albedo layer must not
-/// hold; the fills stay those of the albedo map, and geometry still trains so edges follow
-/// the image.
+/// What the reconstruction stage may change in the albedo layer: the base's geometry and
+/// opacity never ([`hold_albedo_base`]); in photo mode no path's colour or opacity either (a
+/// documented departure, issue 11). Left free there, `A·S` lets an albedo path darken or fade
+/// to explain a shadow or a shading gradient before the illumination paths have taken their
+/// shape, and that lighting stays in the albedo. Geometry still trains so edges follow the
+/// image; the polish stage, with all three layers in place, frees the fills again (on the
+/// generated scenes that halves the albedo error of three of them, and on the bench photos
+/// it recovers most of the reconstruction).
 pub(crate) fn hold_albedo(grads: &mut [PathGrad], mode: ResolvedMode) {
     hold_albedo_base(grads);
     if mode == ResolvedMode::Photo {
