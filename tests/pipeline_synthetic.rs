@@ -1,5 +1,5 @@
 //! The whole pipeline on a synthetic scene with known albedo, shading and highlight: the albedo
-//! layer must be closer to the true albedo than the input is, and the light layer must sit on the
+//! layer must be well closer to the true albedo than the input is, and the light layer must sit on the
 //! highlight. Also: byte-identical SVG for the same seed.
 
 use std::sync::atomic::AtomicBool;
@@ -55,8 +55,9 @@ fn albedo_beats_the_input_and_light_sits_on_the_highlight() {
     let albedo = render_layer(&scene, LayerKind::Albedo);
     let albedo_error = scale_invariant_mse(&albedo, &truth.albedo);
     let input_error = scale_invariant_mse(&truth.image, &truth.albedo);
+    // Issue 11: seeds 0-15 give 0.07-0.62x; the Retinex map this replaced gave about 0.8x.
     assert!(
-        albedo_error < input_error,
+        albedo_error < 0.75 * input_error,
         "albedo layer {albedo_error} vs input {input_error}"
     );
 

@@ -75,7 +75,7 @@ pub fn albedo_map(image: &Image) -> Image {
         ..image.clone()
     };
     let labels = felzenszwalb(&blur(&corrected), SUPERPIXEL_K, (w * h / 4000).max(4));
-    let groups = group_surfaces(&corrected, &labels);
+    let groups = group_surfaces(&corrected, &labels, illuminant);
     let mut map = image.clone();
     for members in surfaces(&groups) {
         let colour = lit_colour(image, &members);
@@ -162,7 +162,7 @@ struct Groups {
 }
 
 /// Joins superpixels into surfaces (steps 3 and 4).
-fn group_surfaces(corrected: &Image, labels: &[u32]) -> Groups {
+fn group_surfaces(corrected: &Image, labels: &[u32], illuminant: [f32; 3]) -> Groups {
     let (w, h) = (corrected.width, corrected.height);
     let n = labels.iter().max().map_or(0, |&m| m as usize + 1);
     let mut pieces = vec![Piece::default(); n];
@@ -230,7 +230,16 @@ fn group_surfaces(corrected: &Image, labels: &[u32]) -> Groups {
             let best = around
                 .iter()
                 .filter(|&&n| groups.stats[n].count > count)
-                .filter_map(|&n| specular_excess(colour, groups.stats[n].mean()).map(|f| (f, n)))
+                .filter_map(|&n| {
+                    let body = groups.stats[n].mean();
+                    // The estimated illuminant's colour, or the image's white should the
+                    // estimate be off: a clipped highlight is white whatever the light.
+                    [[1.0; 3], illuminant.map(|e| 1.0 / e)]
+                        .into_iter()
+                        .filter_map(|white| specular_excess(colour, body, white))
+                        .min_by(f32::total_cmp)
+                        .map(|f| (f, n))
+                })
                 .min_by(|a, b| a.0.total_cmp(&b.0));
             if let Some((_, body)) = best {
                 joins.push((group, body));
@@ -254,14 +263,13 @@ fn group_surfaces(corrected: &Image, labels: &[u32]) -> Groups {
     }
 }
 
-/// If `colour` = a·`body` + s·white with s ≥ [`MIN_SPECULAR`], a > 0 (or `colour` clipped),
+/// If `colour` = a·`body` + s·`white` with s ≥ [`MIN_SPECULAR`], a > 0 (or `colour` clipped),
 /// and it is brighter than the body, the relative residual of that fit; else `None`.
-fn specular_excess(colour: [f32; 3], body: [f32; 3]) -> Option<f32> {
+fn specular_excess(colour: [f32; 3], body: [f32; 3], white: [f32; 3]) -> Option<f32> {
     if intensity(colour) <= intensity(body) {
         return None;
     }
     // Least squares for [body, white] · (a, s) = colour.
-    let white = [1.0f32; 3];
     let dot = |u: [f32; 3], v: [f32; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
     let (bb, bw, ww) = (dot(body, body), dot(body, white), dot(white, white));
     let (bc, wc) = (dot(body, colour), dot(white, colour));
@@ -278,7 +286,7 @@ fn specular_excess(colour: [f32; 3], body: [f32; 3]) -> Option<f32> {
         return None;
     }
     let a = a.max(0.0);
-    let fit = [0, 1, 2].map(|c| a * body[c] + s - colour[c]);
+    let fit = [0, 1, 2].map(|c| a * body[c] + s * white[c] - colour[c]);
     let residual = dot(fit, fit).sqrt() / dot(colour, colour).sqrt().max(1e-6);
     (residual <= DICHROMATIC_RESIDUAL).then_some(residual)
 }
