@@ -269,3 +269,53 @@ fn label_maps_seed_the_albedo_masks() {
         scene.albedo.paths.len()
     );
 }
+
+#[test]
+fn eval_writes_scenes_with_known_layers_and_scores_the_decomposition() {
+    let dir = scratch("intrinsic");
+    let scenes = dir.join("scenes");
+    let out = covec(&[
+        "eval",
+        "--write-scenes",
+        scenes.to_str().unwrap(),
+        "--scene-size",
+        "32",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let sphere = scenes.join("sphere");
+    for file in ["image.png", "albedo.png", "shade.png", "light.png", "edited.png"] {
+        assert!(sphere.join(file).is_file(), "{file} missing");
+    }
+
+    let csv = dir.join("intrinsic.csv");
+    let out = covec(&[
+        "eval",
+        "--intrinsic",
+        sphere.to_str().unwrap(),
+        "--paths",
+        "16",
+        "--iteration-scale",
+        "0.1",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let column = |row: &str, name: &str| -> f32 {
+        let at = header.iter().position(|h| *h == name).unwrap();
+        row.split(',').nth(at).unwrap().parse().unwrap()
+    };
+    let row = |method: &str| {
+        text.lines()
+            .find(|l| l.starts_with(&format!("sphere,{method},")))
+            .unwrap_or_else(|| panic!("no {method} row in\n{text}"))
+    };
+    // The sphere's albedo comes out of its shading in photo mode (0.20x the image's error at
+    // this size), not in simple mode, whose albedo is the image (1.0x).
+    let (photo, simple) = (row("photo"), row("simple"));
+    assert!(column(photo, "albedo_ratio") < 0.5, "{text}");
+    assert!(column(simple, "albedo_ratio") > 0.9, "{text}");
+    assert!(column(photo, "highlight_coverage") > 0.5, "{text}");
+    assert!(row("photo-retinex").contains(",16,"));
+}

@@ -27,7 +27,8 @@ pub struct Args {
     #[arg(long, value_name = "SCENE.json")]
     pub json: Option<PathBuf>,
     /// An albedo map with the image's aspect ratio, e.g. from an intrinsic-decomposition
-    /// network. Default: a classical Retinex-style estimate.
+    /// network. Default: a classical intrinsic decomposition (surfaces grouped by chromaticity,
+    /// one lit colour each; README, "Illumination-aware layers").
     #[arg(long, value_name = "A.png")]
     pub albedo: Option<PathBuf>,
     /// A directory of binary mask images (0 and one other value), one per segment, e.g. from

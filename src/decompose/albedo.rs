@@ -1,5 +1,6 @@
-//! Classical substitute for the paper's intrinsic-decomposition network (Careaga & Aksoy 2024):
-//! an edge-preserving Retinex-style shading estimate, and albedo = image / shading.
+//! The grey Retinex albedo estimate: an edge-preserving shading estimate, and albedo = image /
+//! shading. Photo mode used it until issue 11 replaced it by [`super::intrinsic`]; it stays as
+//! the baseline `covec eval --intrinsic` measures against, and for [`intensity`].
 //!
 //! Shading is taken as the log-luminance smoothed by a self-guided filter (He et al. 2010):
 //! gradual variations (shading) are kept and fine texture goes to the albedo, while strong

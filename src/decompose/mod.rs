@@ -5,7 +5,7 @@
 //!
 //! | paper (Sec. 4.2) | given by the client | classical substitute here |
 //! |---|---|---|
-//! | albedo map, Careaga & Aksoy 2024 | the client's albedo map | [`albedo`]: edge-preserving Retinex shading, albedo = image / shading |
+//! | albedo map, Careaga & Aksoy 2024 | the client's albedo map | [`intrinsic`]: illuminant-corrected superpixels grouped into surfaces by chromaticity, highlights joined by the dichromatic model, one lit colour per surface ([`albedo`], the grey Retinex estimate it replaced, stays as a baseline for `covec eval --intrinsic`) |
 //! | SAM masks of the albedo map | the client's masks or label map | [`segment`]: Felzenszwalb superpixels merged by Ward's criterion, all scales |
 //! | region-wise binarisation | — | [`binarize`] (as in the paper) |
 //! | LayerVec mask organisation | — | [`organize`] (as in LayerVec) |
