@@ -283,7 +283,13 @@ fn eval_writes_scenes_with_known_layers_and_scores_the_decomposition() {
     ]);
     assert!(out.status.success(), "{}", stderr(&out));
     let sphere = scenes.join("sphere");
-    for file in ["image.png", "albedo.png", "shade.png", "light.png", "edited.png"] {
+    for file in [
+        "image.png",
+        "albedo.png",
+        "shade.png",
+        "light.png",
+        "edited.png",
+    ] {
         assert!(sphere.join(file).is_file(), "{file} missing");
     }
 
