@@ -158,6 +158,32 @@ pub fn to_rgb8(img: &Image) -> image::RgbImage {
         .expect("buffer matches size")
 }
 
+/// A deterministic small "photo" for tests: smooth shading over several flat-albedo blobs,
+/// with mild noise.
+pub fn blobs_photo(w: u32, h: u32) -> image::RgbImage {
+    let mut state = 12345u32;
+    let mut noise = move || {
+        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (state >> 24) as f32 / 255.0 - 0.5
+    };
+    image::RgbImage::from_fn(w, h, |x, y| {
+        let (fx, fy) = (x as f32 / w as f32, y as f32 / h as f32);
+        let albedo = if (fx - 0.35).powi(2) + (fy - 0.4).powi(2) < 0.05 {
+            [0.9, 0.3, 0.2]
+        } else if fx > 0.6 && fy > 0.55 {
+            [0.2, 0.4, 0.85]
+        } else if fy < 0.2 {
+            [0.3, 0.8, 0.3]
+        } else {
+            [0.85, 0.85, 0.8]
+        };
+        let shading = 0.45 + 0.55 * (1.0 - fx * 0.8) * (1.0 - fy * 0.3);
+        image::Rgb(
+            albedo.map(|a| ((a * shading + 0.03 * noise()).clamp(0.0, 1.0) * 255.0).round() as u8),
+        )
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -190,30 +216,4 @@ mod tests {
         assert!(scale_invariant_mse(&scaled, &scene.albedo) < 1e-10);
         assert!(scale_invariant_mse(&scene.image, &scene.albedo) > 1e-4);
     }
-}
-
-/// A deterministic small "photo" for tests: smooth shading over several flat-albedo blobs,
-/// with mild noise.
-pub fn blobs_photo(w: u32, h: u32) -> image::RgbImage {
-    let mut state = 12345u32;
-    let mut noise = move || {
-        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-        (state >> 24) as f32 / 255.0 - 0.5
-    };
-    image::RgbImage::from_fn(w, h, |x, y| {
-        let (fx, fy) = (x as f32 / w as f32, y as f32 / h as f32);
-        let albedo = if (fx - 0.35).powi(2) + (fy - 0.4).powi(2) < 0.05 {
-            [0.9, 0.3, 0.2]
-        } else if fx > 0.6 && fy > 0.55 {
-            [0.2, 0.4, 0.85]
-        } else if fy < 0.2 {
-            [0.3, 0.8, 0.3]
-        } else {
-            [0.85, 0.85, 0.8]
-        };
-        let shading = 0.45 + 0.55 * (1.0 - fx * 0.8) * (1.0 - fy * 0.3);
-        image::Rgb(
-            albedo.map(|a| ((a * shading + 0.03 * noise()).clamp(0.0, 1.0) * 255.0).round() as u8),
-        )
-    })
 }
