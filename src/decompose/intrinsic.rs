@@ -369,4 +369,29 @@ mod tests {
         let body_px = map.pixel(34, 34);
         assert_eq!(at, body_px, "highlight {at:?} vs body {body_px:?}");
     }
+
+    #[test]
+    fn a_cast_shadow_joins_its_surface_and_a_new_colour_does_not() {
+        // A green floor, a band of it in shadow (same colour × 0.35), and a blue square.
+        let (w, h) = (48, 48);
+        let floor = [0.3f32, 0.6, 0.25];
+        let mut image = Image::filled(w, h, floor);
+        for y in 0..h {
+            for x in 0..w {
+                let px = if (30..40).contains(&x) && (4..44).contains(&y) {
+                    [0.2, 0.3, 0.8]
+                } else if (12..24).contains(&x) {
+                    floor.map(|v| 0.35 * v)
+                } else {
+                    continue;
+                };
+                image.data[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&px);
+            }
+        }
+        let map = albedo_map(&image);
+        let (lit, shadow, square) = (map.pixel(4, 20), map.pixel(18, 20), map.pixel(35, 20));
+        assert_eq!(shadow, lit, "shadow {shadow:?} vs lit {lit:?}");
+        assert!((0..3).all(|c| (lit[c] - floor[c]).abs() < 0.02), "{lit:?}");
+        assert!(angle(square, lit) > 0.3, "{square:?} joined {lit:?}");
+    }
 }
