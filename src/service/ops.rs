@@ -82,7 +82,8 @@ async fn metrics(State(state): State<AppState>) -> Response {
 
 /// Records every request's route, status and latency.
 pub async fn record_http(State(state): State<AppState>, request: Request, next: Next) -> Response {
-    let method = request.method().clone();
+    let method = method_label(request.method());
+    // The matched template (`/v1/jobs/{id}`), never the raw path: one series per route.
     let route = request
         .extensions()
         .get::<MatchedPath>()
@@ -90,12 +91,22 @@ pub async fn record_http(State(state): State<AppState>, request: Request, next: 
     let started = Instant::now();
     let response = next.run(request).await;
     state.metrics.http_request(
-        method.as_str(),
+        method,
         &route,
         response.status().as_u16(),
         started.elapsed(),
     );
     response
+}
+
+/// The `method` label: clients may send any token as a method, and one series per token would
+/// grow `/metrics` without bound (issue 13), so unknown methods share the label `other`.
+fn method_label(method: &Method) -> &'static str {
+    const KNOWN: [&str; 7] = ["GET", "POST", "PUT", "DELETE", "PATCH", "HEAD", "OPTIONS"];
+    KNOWN
+        .into_iter()
+        .find(|known| *known == method.as_str())
+        .unwrap_or("other")
 }
 
 const HTTP_BUCKETS: &[f64] = &[
