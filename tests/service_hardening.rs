@@ -6,9 +6,12 @@
 mod service_support;
 
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use hyper::{Method, StatusCode};
 use service_support::{DataDir, Server};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
 
 /// Made-up methods and raw paths must not become label values: `/metrics` stays the same few
 /// series however many distinct ones clients send.
@@ -52,4 +55,125 @@ async fn metrics_labels_stay_bounded_under_made_up_methods_and_paths() {
     }
     // Before the fix these requests made it about 5.5 MB.
     assert!(text.len() < 16 * 1024, "/metrics is {} bytes", text.len());
+}
+
+/// Opens `count` connections that each send half a request's headers and then nothing.
+async fn half_open(server: &Server, count: usize) -> Vec<TcpStream> {
+    let addr = server.base.strip_prefix("http://").unwrap();
+    let mut connections = Vec::with_capacity(count);
+    for _ in 0..count {
+        let mut stream = TcpStream::connect(addr).await.unwrap();
+        stream
+            .write_all(b"GET /healthz HTTP/1.1\r\nHost: covec\r\n")
+            .await
+            .unwrap();
+        connections.push(stream);
+    }
+    connections
+}
+
+/// How many of `connections` the server has closed (end of stream or reset) within `wait`.
+async fn closed_within(connections: &mut [TcpStream], wait: Duration) -> usize {
+    let deadline = tokio::time::Instant::now() + wait;
+    let mut closed = 0;
+    for stream in connections {
+        let mut byte = [0_u8; 1];
+        let read = tokio::time::timeout_at(deadline, stream.read(&mut byte)).await;
+        if matches!(read, Ok(Ok(0) | Err(_))) {
+            closed += 1;
+        }
+    }
+    closed
+}
+
+/// Slowloris: connections holding half-sent headers neither lock new clients out (the oldest
+/// idle ones make room) nor stay open past the header read timeout; a stalled body ends at the
+/// body read timeout.
+#[tokio::test(flavor = "multi_thread")]
+async fn half_open_connections_neither_lock_clients_out_nor_stay_open() {
+    let dir = DataDir::new("slowloris");
+    let server = Server::start(
+        &dir.0,
+        &[
+            "--max-connections",
+            "100",
+            "--header-read-timeout",
+            "1",
+            "--body-read-timeout",
+            "1",
+        ],
+    );
+    let mut idle = half_open(&server, 300).await;
+    let started = Instant::now();
+    let reply = server.get("/healthz").await;
+    let waited = started.elapsed();
+    assert_eq!(reply.status, StatusCode::OK);
+    println!("a new client with 300 half-open connections waited {waited:?}");
+    assert!(waited < Duration::from_millis(900), "waited {waited:?}");
+    // Evicted at once or closed by the 1 s header timeout.
+    let closed = closed_within(&mut idle, Duration::from_secs(3)).await;
+    assert_eq!(closed, idle.len(), "half-open connections left open");
+
+    // A body that stops halfway fails after the 1 s body read timeout.
+    let addr = server.base.strip_prefix("http://").unwrap();
+    let mut upload = TcpStream::connect(addr).await.unwrap();
+    upload
+        .write_all(
+            b"POST /v1/jobs HTTP/1.1\r\nHost: covec\r\nContent-Type: application/json\r\n\
+              Content-Length: 1000\r\n\r\n{\"image\": \"",
+        )
+        .await
+        .unwrap();
+    let started = Instant::now();
+    let mut answer = Vec::new();
+    tokio::time::timeout(Duration::from_secs(3), upload.read_to_end(&mut answer))
+        .await
+        .expect("the stalled upload ends within 3 s")
+        .unwrap();
+    let answer = String::from_utf8_lossy(&answer);
+    assert!(answer.starts_with("HTTP/1.1 400"), "{answer}");
+    assert!(started.elapsed() >= Duration::from_millis(900));
+}
+
+/// SIGTERM with a half-open connection, an idle one and a running job: the process exits
+/// within the grace period (the job is stopped and re-queued for the next start).
+#[tokio::test(flavor = "multi_thread")]
+async fn shutdown_completes_within_the_grace_period_despite_half_open_connections() {
+    let dir = DataDir::new("shutdown-half-open");
+    let server = Server::start(
+        &dir.0,
+        &[
+            "--header-read-timeout",
+            "60",
+            "--shutdown-grace",
+            "1",
+            "--max-iterations",
+            "10000000",
+        ],
+    );
+    let created = server
+        .submit(
+            &[
+                ("image", &service_support::test_png(64)),
+                ("params", service_support::LONG_PARAMS.as_bytes()),
+            ],
+            &[],
+        )
+        .await;
+    assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
+    let id = created.json()["id"].as_str().unwrap().to_owned();
+    server
+        .wait_for(&id, Duration::from_secs(10), |job| {
+            job["status"] == "running"
+        })
+        .await;
+    let _half_open = half_open(&server, 1).await;
+    let addr = server.base.strip_prefix("http://").unwrap();
+    let _idle = TcpStream::connect(addr).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let started = Instant::now();
+    server.stop();
+    let took = started.elapsed();
+    println!("stopped in {took:?} with a half-open connection and a running job");
+    assert!(took < Duration::from_secs(3), "stopping took {took:?}");
 }

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use clap::Args;
 
-use covec::service::{self, Config, InputLimits, QueueConfig};
+use covec::service::{self, Config, ConnectionLimits, InputLimits, QueueConfig};
 
 /// Every option also reads an environment variable (shown in `--help`); flags win.
 #[derive(Args, Debug)]
@@ -63,6 +63,17 @@ pub struct ServeArgs {
     /// Origins allowed by CORS, comma-separated; `*` allows any.
     #[arg(long, env = "COVEC_CORS_ORIGINS", value_delimiter = ',')]
     cors_origins: Vec<String>,
+    /// Seconds a client may take to send a request's headers; also how long an idle connection
+    /// stays open.
+    #[arg(long, env = "COVEC_HEADER_READ_TIMEOUT", default_value_t = ConnectionLimits::default().header_read_timeout.as_secs())]
+    header_read_timeout: u64,
+    /// Longest pause, in seconds, while a client sends a request body; then the request fails.
+    #[arg(long, env = "COVEC_BODY_READ_TIMEOUT", default_value_t = ConnectionLimits::default().body_read_timeout.as_secs())]
+    body_read_timeout: u64,
+    /// Most open connections; a new one beyond it closes the oldest idle or half-sent one.
+    /// Keep it well below `ulimit -n`: jobs need files too.
+    #[arg(long, env = "COVEC_MAX_CONNECTIONS", default_value_t = ConnectionLimits::default().max_connections)]
+    max_connections: usize,
     /// Seconds running jobs may finish after SIGTERM before they are re-queued for the next start.
     #[arg(long, env = "COVEC_SHUTDOWN_GRACE", default_value_t = Config::default().shutdown_grace.as_secs())]
     shutdown_grace: u64,
@@ -88,6 +99,11 @@ impl ServeArgs {
                 max_paths: self.max_paths,
                 max_size: self.max_size,
                 max_iterations: self.max_iterations,
+            },
+            connections: ConnectionLimits {
+                header_read_timeout: Duration::from_secs(self.header_read_timeout),
+                body_read_timeout: Duration::from_secs(self.body_read_timeout),
+                max_connections: self.max_connections,
             },
             api_keys: self
                 .api_keys

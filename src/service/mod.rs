@@ -9,6 +9,7 @@
 //! [`endpoints`], which a test compares with the OpenAPI document.
 
 mod auth;
+mod conn;
 mod edits;
 mod error;
 mod jobs;
@@ -19,6 +20,7 @@ mod results;
 mod store;
 mod submit;
 
+pub use conn::ConnectionLimits;
 pub use queue::QueueConfig;
 pub use submit::InputLimits;
 
@@ -57,6 +59,8 @@ pub struct Config {
     pub queue: QueueConfig,
     /// What one job may send and ask for.
     pub limits: InputLimits,
+    /// Read timeouts and the connection cap.
+    pub connections: ConnectionLimits,
     /// Accepted API keys; empty (the default) means no authentication.
     pub api_keys: Vec<String>,
     /// Origins allowed by CORS; `*` allows any. Default none (no CORS headers).
@@ -72,6 +76,7 @@ impl Default for Config {
             data_dir: PathBuf::from("covec-data"),
             queue: QueueConfig::default(),
             limits: InputLimits::default(),
+            connections: ConnectionLimits::default(),
             api_keys: Vec::new(),
             cors_origins: Vec::new(),
             shutdown_grace: Duration::from_secs(30),
@@ -248,8 +253,9 @@ fn cors_layer(origins: &[String]) -> CorsLayer {
     }
 }
 
-/// Runs the service until SIGINT/SIGTERM, then drains: stops accepting, ends event streams,
-/// lets running jobs finish for `shutdown_grace` (longer ones are re-queued for the next start).
+/// Runs the service until SIGINT/SIGTERM, then drains: stops accepting and starting jobs, ends
+/// event streams and idle connections, lets running jobs and responses finish for
+/// `shutdown_grace` (longer jobs are re-queued for the next start, other connections dropped).
 /// `on_listening` gets the bound address (useful with port 0).
 pub async fn serve(
     config: Config,
@@ -268,19 +274,26 @@ pub async fn serve(
 
     let sweeper = tokio::spawn(sweep_expired(state.queue.clone(), config.queue.retention));
     let shutdown = state.shutdown.clone();
-    axum::serve(listener, app(state.clone()))
-        .with_graceful_shutdown(async move {
-            stop_signal().await;
-            tracing::info!("shutting down: no new connections");
-            shutdown.send_replace(true);
-        })
-        .await?;
+    let signal = tokio::spawn(async move {
+        stop_signal().await;
+        shutdown.send_replace(true);
+    });
+    let connections = conn::accept(
+        listener,
+        app(state.clone()),
+        config.connections,
+        state.shutdown.subscribe(),
+    )
+    .await;
+    tracing::info!("shutting down: no new connections or jobs");
+    signal.abort();
     sweeper.abort();
+    // Jobs and connections wind down together, so the whole stop takes one grace period.
     let queue = state.queue.clone();
     let grace = config.shutdown_grace;
-    tokio::task::spawn_blocking(move || queue.drain(grace))
-        .await
-        .map_err(std::io::Error::other)?;
+    let drain = tokio::task::spawn_blocking(move || queue.drain(grace));
+    conn::close(connections, grace).await;
+    drain.await.map_err(std::io::Error::other)?;
     tracing::info!("stopped");
     Ok(())
 }
