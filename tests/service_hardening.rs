@@ -177,3 +177,50 @@ async fn shutdown_completes_within_the_grace_period_despite_half_open_connection
     println!("stopped in {took:?} with a half-open connection and a running job");
     assert!(took < Duration::from_secs(3), "stopping took {took:?}");
 }
+
+/// Problem details echo client strings cut short, and never show the data directory's path.
+#[tokio::test(flavor = "multi_thread")]
+async fn problem_details_stay_short_and_hide_server_paths() {
+    let dir = DataDir::new("details");
+    let server = Server::start(&dir.0, &[]);
+    let image = service_support::test_png(32);
+    let params = format!(r#"{{"mode": "{}"}}"#, "m".repeat(100_000));
+    let refused = server
+        .submit(&[("image", &image), ("params", params.as_bytes())], &[])
+        .await;
+    let detail = service_support::problem(&refused)["detail"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    assert_eq!(refused.status, StatusCode::UNPROCESSABLE_ENTITY, "{detail}");
+    assert!(detail.len() < 600, "a detail of {} bytes", detail.len());
+    assert!(
+        detail.contains(&format!("`{}…`", "m".repeat(64))),
+        "{detail}"
+    );
+
+    // A storage failure: the jobs directory replaced by a file (root ignores permissions).
+    let jobs = dir.0.join("jobs");
+    std::fs::remove_dir_all(&jobs).unwrap();
+    std::fs::write(&jobs, b"not a directory").unwrap();
+    let failed = server
+        .submit(
+            &[
+                ("image", &image),
+                ("params", service_support::QUICK_PARAMS.as_bytes()),
+            ],
+            &[],
+        )
+        .await;
+    let problem = service_support::problem(&failed);
+    assert_eq!(
+        failed.status,
+        StatusCode::INTERNAL_SERVER_ERROR,
+        "{problem}"
+    );
+    let detail = problem["detail"].as_str().unwrap();
+    assert!(detail.contains("Not a directory"), "{detail}");
+    let root = dir.0.to_str().unwrap();
+    assert!(!detail.contains(root), "the data directory in {detail}");
+    assert!(!detail.contains("/tmp"), "a server path in {detail}");
+}

@@ -280,7 +280,14 @@ async fn a_full_queue_answers_503_with_retry_after() {
     server
         .wait_for(&running, PATIENCE, |job| job["status"] == "running")
         .await;
-    let waiting = submit_long(&server).await;
+    let image = test_png(64);
+    let long = [
+        ("image", image.as_slice()),
+        ("params", LONG_PARAMS.as_bytes()),
+    ];
+    let waiting = server.submit(&long, &[("idempotency-key", "wait-1")]).await;
+    assert_eq!(waiting.status, StatusCode::CREATED, "{}", waiting.text());
+    let waiting = waiting.json()["id"].as_str().unwrap().to_owned();
     let refused = server
         .submit(
             &[
@@ -303,6 +310,13 @@ async fn a_full_queue_answers_503_with_retry_after() {
         .unwrap();
     assert!(seconds >= 1);
     assert_eq!(problem(&refused)["code"], "queue-full");
+    // A retry of the queued job gets its replay although the queue is full; a new key does not.
+    let retry = server.submit(&long, &[("idempotency-key", "wait-1")]).await;
+    assert_eq!(retry.status, StatusCode::CREATED, "{}", retry.text());
+    assert_eq!(retry.header("idempotent-replayed"), Some("true"));
+    assert_eq!(retry.json()["id"], json!(waiting));
+    let new_key = server.submit(&long, &[("idempotency-key", "wait-2")]).await;
+    assert_eq!(problem(&new_key)["code"], "queue-full");
     // Canceling the queued job makes room again.
     let cancel = server
         .request(

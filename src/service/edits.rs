@@ -165,11 +165,7 @@ async fn create(
     let job_id = id.clone();
     let record = tokio::task::spawn_blocking(move || {
         let store = queue.store();
-        let read = |name: &str| {
-            store
-                .read_artefact(&job_id, name)
-                .map_err(|e| ApiError::Internal(e.to_string()))
-        };
+        let read = |name: &str| store.read_artefact(&job_id, name).map_err(ApiError::from);
         let prefix = base
             .as_ref()
             .map(|base| format!("edits/{base}/"))
@@ -357,7 +353,7 @@ fn store_edit(
     let write = |name: &str, bytes: &[u8]| {
         store
             .write_artefact(job_id, name, bytes)
-            .map_err(|e| ApiError::Internal(e.to_string()))
+            .map_err(ApiError::from)
     };
     for artefact in output::artefacts(&edit.scene, EDIT_FILES) {
         write(

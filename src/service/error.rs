@@ -156,7 +156,7 @@ impl ApiError {
             kind: format!("urn:covec:problem:{}", self.code()),
             title: status.canonical_reason().unwrap_or("Error").to_owned(),
             status: status.as_u16(),
-            detail: self.to_string(),
+            detail: bounded(&self.to_string()),
             code: self.code().to_owned(),
             limit,
             actual,
@@ -165,14 +165,44 @@ impl ApiError {
     }
 }
 
+/// Longest client-sent value a `detail` echoes (between backticks): a 30 MB `mode` must not
+/// come back whole.
+const ECHO_CHARS: usize = 64;
+/// Longest `detail`, for values echoed without backticks (paths, methods).
+const DETAIL_CHARS: usize = 512;
+
+/// `detail` with each backticked span cut to [`ECHO_CHARS`] and the whole to [`DETAIL_CHARS`].
+fn bounded(detail: &str) -> String {
+    let mut spans = String::with_capacity(detail.len().min(4 * DETAIL_CHARS));
+    for (i, span) in detail.split('`').enumerate() {
+        if i > 0 {
+            spans.push('`');
+        }
+        // Odd spans are the quoted ones.
+        spans.push_str(&clip(
+            span,
+            if i % 2 == 1 { ECHO_CHARS } else { DETAIL_CHARS },
+        ));
+    }
+    clip(&spans, DETAIL_CHARS)
+}
+
+/// `text` cut to `max` characters, marked with `…` when cut.
+fn clip(text: &str, max: usize) -> String {
+    match text.char_indices().nth(max) {
+        Some((end, _)) => format!("{}…", &text[..end]),
+        None => text.to_owned(),
+    }
+}
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        if self.status().is_server_error() {
-            tracing::error!(code = self.code(), "{self}");
-        } else {
-            tracing::debug!(code = self.code(), "{self}");
-        }
         let problem = self.problem();
+        if self.status().is_server_error() {
+            tracing::error!(code = self.code(), "{}", problem.detail);
+        } else {
+            tracing::debug!(code = self.code(), "{}", problem.detail);
+        }
         let body = serde_json::to_vec(&problem).expect("a problem always serialises");
         let mut response = (self.status(), body).into_response();
         let headers = response.headers_mut();
@@ -181,5 +211,30 @@ impl IntoResponse for ApiError {
             headers.insert(header::RETRY_AFTER, HeaderValue::from(seconds));
         }
         response
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn details_echo_client_strings_cut_short() {
+        let mode = "x".repeat(100_000);
+        let error = ApiError::InvalidParams(format!(
+            "unknown variant `{mode}`, expected `photo` or `simple`"
+        ));
+        let detail = error.problem().detail;
+        let cut = format!("`{}…`", "x".repeat(ECHO_CHARS));
+        assert_eq!(
+            detail,
+            format!("invalid parameters: unknown variant {cut}, expected `photo` or `simple`")
+        );
+        let path = "/é".repeat(10_000);
+        let detail = ApiError::RouteNotFound(path).problem().detail;
+        assert_eq!(detail.chars().count(), DETAIL_CHARS + 1);
+        assert!(detail.ends_with('…'));
+        let short = ApiError::MalformedJobId("job_1".into()).problem().detail;
+        assert!(short.starts_with("`job_1` is not a job id"), "{short}");
     }
 }

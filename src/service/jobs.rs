@@ -63,7 +63,6 @@ async fn create(
     headers: HeaderMap,
     request: Request,
 ) -> Result<Response, ApiError> {
-    state.queue.check_capacity()?;
     let key = match headers.get(IDEMPOTENCY_KEY) {
         Some(value) => match value.to_str() {
             Ok(key) if !key.is_empty() && key.len() <= 255 => Some(key.to_owned()),
@@ -75,12 +74,18 @@ async fn create(
         },
         None => None,
     };
+    // Without a key, a full queue refuses before the body is read. With one, a retry gets its
+    // replay even when the queue is full: capacity is checked once the key is looked up.
+    if key.is_none() {
+        state.queue.check_capacity()?;
+    }
     let submission = submit::read(request, &state.limits).await?;
     let fingerprint = submission.fingerprint();
-    if let Some(key) = &key
-        && let Some(earlier) = state.queue.find_idempotent(&owner.0, key, &fingerprint)?
-    {
-        return Ok(created(&state, &earlier, true));
+    if let Some(key) = &key {
+        if let Some(earlier) = state.queue.find_idempotent(&owner.0, key, &fingerprint)? {
+            return Ok(created(&state, &earlier, true));
+        }
+        state.queue.check_capacity()?;
     }
     // Decoding is CPU work: off the async workers.
     let limits = state.limits.clone();

@@ -32,7 +32,7 @@ async fn healthz() -> impl IntoResponse {
 async fn readyz(State(state): State<AppState>) -> Response {
     let queue = state.queue.clone();
     let storage = tokio::task::spawn_blocking(move || {
-        queue.store().check().map_err(|error| error.to_string())
+        queue.store().check().map_err(|error| error.public_detail())
     })
     .await
     .unwrap_or_else(|error| Err(error.to_string()));

@@ -331,7 +331,7 @@ impl Queue {
         for (name, bytes) in &inputs {
             self.store
                 .write_artefact(&id, name, bytes)
-                .map_err(internal)?;
+                .map_err(ApiError::from)?;
         }
         let mut state = lock(&self.state);
         let refuse = |state: MutexGuard<'_, State>, error: ApiError| {
@@ -362,7 +362,7 @@ impl Queue {
             return refuse(state, error);
         }
         if let Err(error) = self.store.save(&record) {
-            return refuse(state, internal(error));
+            return refuse(state, ApiError::from(error));
         }
         if let Some(idempotency) = &record.idempotency {
             state
@@ -409,9 +409,11 @@ impl Queue {
                 .remove(&(entry.owner.clone(), idempotency.key.clone()));
         }
         drop(state);
-        self.store.delete(&entry.id).map_err(internal)?;
+        self.store.delete(&entry.id).map_err(ApiError::from)?;
         // A runner still working on the job removes its files again when it stops.
-        self.store.remove_artefacts(&entry.id).map_err(internal)
+        self.store
+            .remove_artefacts(&entry.id)
+            .map_err(ApiError::from)
     }
 
     /// Removes the results of jobs whose retention has passed; returns how many.
@@ -549,7 +551,7 @@ impl Queue {
                     record.progress = None;
                     record.cancel_requested = false;
                 });
-                self.store.save(&entry.snapshot()).map_err(internal)
+                self.store.save(&entry.snapshot()).map_err(ApiError::from)
             }
         };
         if let Err(error) = saved {
@@ -573,7 +575,7 @@ impl Queue {
             record.error = error.as_ref().map(ApiError::problem);
             record.cancel_reason = reason;
         });
-        self.store.save(&entry.snapshot()).map_err(internal)
+        self.store.save(&entry.snapshot()).map_err(ApiError::from)
     }
 
     fn execute(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) -> Outcome {
@@ -581,11 +583,13 @@ impl Queue {
         let read = |name: &str| self.store.read_artefact(&entry.id, name);
         let inputs = (|| {
             let missing = || ApiError::Internal("the job's input files are missing".into());
-            let image = read("input/image").map_err(internal)?.ok_or_else(missing)?;
+            let image = read("input/image")
+                .map_err(ApiError::from)?
+                .ok_or_else(missing)?;
             let albedo = if record.inputs.albedo {
                 Some(
                     read("input/albedo")
-                        .map_err(internal)?
+                        .map_err(ApiError::from)?
                         .ok_or_else(missing)?,
                 )
             } else {
@@ -594,7 +598,7 @@ impl Queue {
             let labels = if record.inputs.labels {
                 Some(
                     read("input/labels")
-                        .map_err(internal)?
+                        .map_err(ApiError::from)?
                         .ok_or_else(missing)?,
                 )
             } else {
@@ -604,7 +608,7 @@ impl Queue {
                 .map(|index| {
                     Ok(Bytes::from(
                         read(&format!("input/mask-{index}"))
-                            .map_err(internal)?
+                            .map_err(ApiError::from)?
                             .ok_or_else(missing)?,
                     ))
                 })
@@ -639,7 +643,7 @@ impl Queue {
         match result {
             Ok(Ok(output)) => match self.write_results(&entry.id, &output) {
                 Ok(()) => Outcome::Succeeded(output.mode.into()),
-                Err(error) => Outcome::Failed(internal(error)),
+                Err(error) => Outcome::Failed(ApiError::from(error)),
             },
             Ok(Err(pipeline::Error::Canceled)) => match *lock(&entry.cancel_reason) {
                 Some(CancelReason::Deadline) => {
@@ -698,10 +702,6 @@ fn lower_thread_priority() {
 
 #[cfg(target_os = "linux")]
 const PIPELINE_NICE: libc::c_int = 10;
-
-fn internal(error: StoreError) -> ApiError {
-    ApiError::Internal(error.to_string())
-}
 
 /// Turns pipeline callbacks into job progress and stored previews.
 struct JobObserver<'a> {

@@ -68,7 +68,7 @@ pub(super) async fn artefact(
     })
     .await
     .map_err(|error| ApiError::Internal(error.to_string()))?
-    .map_err(|error| ApiError::Internal(error.to_string()))?;
+    .map_err(ApiError::from)?;
     match bytes {
         (_, Some(bytes)) => Ok(([(header::CONTENT_TYPE, media_type)], bytes).into_response()),
         (name, None) => Err(ApiError::ResultNotFound(name)),

@@ -16,6 +16,7 @@ use std::sync::Mutex;
 
 use rusqlite::{Connection, params};
 
+use super::error::ApiError;
 use super::model::JobRecord;
 
 #[derive(Debug, thiserror::Error)]
@@ -32,6 +33,25 @@ pub enum StoreError {
         id: String,
         source: serde_json::Error,
     },
+}
+
+impl StoreError {
+    /// What failed without where: clients never see the data directory's paths (they stay in
+    /// the server log).
+    pub fn public_detail(&self) -> String {
+        match self {
+            StoreError::Io { source, .. } => format!("storage: {source}"),
+            StoreError::Sqlite(error) => format!("job database: {error}"),
+            StoreError::CorruptRecord { id, .. } => format!("job record {id} is corrupt"),
+        }
+    }
+}
+
+impl From<StoreError> for ApiError {
+    fn from(error: StoreError) -> Self {
+        tracing::error!(%error, "storage error");
+        ApiError::Internal(error.public_detail())
+    }
 }
 
 fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
