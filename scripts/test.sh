@@ -13,6 +13,17 @@ fi
 # line's and the service's dependencies.
 python3 scripts/check-modules.py
 cargo check --quiet --lib --no-default-features
+# Formatting and lints, where the toolchain has rustfmt and clippy (rustup's default profile does).
+if cargo fmt --version >/dev/null 2>&1; then
+    cargo fmt --check
+else
+    echo "test.sh: no rustfmt in this toolchain, formatting not checked" >&2
+fi
+if cargo clippy --version >/dev/null 2>&1; then
+    cargo clippy --quiet --all-targets -- -D warnings
+else
+    echo "test.sh: no clippy in this toolchain, lints skipped" >&2
+fi
 
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
 

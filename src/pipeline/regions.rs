@@ -161,7 +161,7 @@ impl Ellipse {
     }
 
     /// A closed path of `segments` cubics on the ellipse (the standard 4/3·tan(φ/4) handles).
-    pub fn to_path(&self, segments: usize, color: [f32; 3], opacity: f32) -> Path {
+    pub fn to_path(self, segments: usize, color: [f32; 3], opacity: f32) -> Path {
         let step = std::f32::consts::TAU / segments as f32;
         let kappa = 4.0 / 3.0 * (step / 4.0).tan();
         let (sin, cos) = self.angle.sin_cos();
