@@ -443,3 +443,57 @@ async fn results_expire_after_the_retention_period() {
         "the files are removed"
     );
 }
+
+#[tokio::test]
+async fn prefer_wait_answers_with_the_finished_job_or_202_in_time() {
+    let dir = DataDir::new("prefer-wait");
+    let mut args = vec!["--workers", "1", "--max-wait", "2"];
+    args.extend_from_slice(BIG_BUDGET);
+    let server = Server::start(&dir.0, &args);
+    let quick = [
+        ("image", test_png(48)),
+        ("params", QUICK_PARAMS.as_bytes().to_vec()),
+    ];
+    let quick: Vec<(&str, &[u8])> = quick.iter().map(|(n, b)| (*n, b.as_slice())).collect();
+
+    // A small job ends within the wait: 200 with the finished job.
+    let done = server
+        .submit(&quick, &[("prefer", "respond-async, wait=30")])
+        .await;
+    assert_eq!(done.status, StatusCode::OK, "{}", done.text());
+    assert_eq!(done.json()["status"], "succeeded");
+    assert!(done.header("location").is_some());
+    // Asked 30 s, capped by --max-wait.
+    assert_eq!(done.header("preference-applied"), Some("wait=2"));
+
+    // A long one does not: 202 after the (capped) wait, the job still going.
+    let started = std::time::Instant::now();
+    let long = [
+        ("image", test_png(64)),
+        ("params", LONG_PARAMS.as_bytes().to_vec()),
+    ];
+    let long: Vec<(&str, &[u8])> = long.iter().map(|(n, b)| (*n, b.as_slice())).collect();
+    let pending = server.submit(&long, &[("prefer", "wait=30")]).await;
+    let waited = started.elapsed();
+    assert_eq!(pending.status, StatusCode::ACCEPTED, "{}", pending.text());
+    assert!(!terminal(&pending.json()), "{}", pending.text());
+    assert!(
+        waited >= Duration::from_secs(2) && waited < Duration::from_secs(10),
+        "{waited:?}"
+    );
+    let id = pending.json()["id"].as_str().unwrap().to_owned();
+    let cancel = server
+        .request(
+            Method::POST,
+            &format!("/v1/jobs/{id}/cancel"),
+            &[],
+            Vec::new(),
+        )
+        .await;
+    assert_eq!(cancel.status, StatusCode::ACCEPTED, "{}", cancel.text());
+
+    // Without the preference, or with a malformed one: 201 at once, as before.
+    let plain = server.submit(&quick, &[("prefer", "wait=soon")]).await;
+    assert_eq!(plain.status, StatusCode::CREATED, "{}", plain.text());
+    assert!(plain.header("preference-applied").is_none());
+}

@@ -77,6 +77,9 @@ pub struct ServeArgs {
     /// Seconds running jobs may finish after SIGTERM before they are re-queued for the next start.
     #[arg(long, env = "COVEC_SHUTDOWN_GRACE", default_value_t = Config::default().shutdown_grace.as_secs())]
     shutdown_grace: u64,
+    /// Longest `Prefer: wait=N` honoured on a submission, in seconds; 0 ignores it.
+    #[arg(long, env = "COVEC_MAX_WAIT", default_value_t = Config::default().max_wait.as_secs())]
+    max_wait: u64,
 }
 
 impl ServeArgs {
@@ -116,6 +119,7 @@ impl ServeArgs {
                 .filter(|origin| !origin.is_empty())
                 .collect(),
             shutdown_grace: Duration::from_secs(self.shutdown_grace),
+            max_wait: Duration::from_secs(self.max_wait),
         }
     }
 }

@@ -56,6 +56,7 @@ fn view(state: &AppState, entry: &JobEntry) -> JobView {
 }
 
 const IDEMPOTENCY_KEY: &str = "idempotency-key";
+const PREFER: &str = "prefer";
 
 async fn create(
     State(state): State<AppState>,
@@ -150,13 +151,60 @@ async fn create(
     let admission = tokio::task::spawn_blocking(move || queue.admit(record, inputs))
         .await
         .map_err(|error| ApiError::Internal(error.to_string()))??;
-    Ok(match admission {
+    let (entry, replayed) = match admission {
         Admission::Created(entry) => {
             tracing::info!("job created");
-            created(&state, &entry, false)
+            (entry, false)
         }
-        Admission::Replayed(entry) => created(&state, &entry, true),
+        Admission::Replayed(entry) => (entry, true),
+    };
+    let wait = preferred_wait(&headers).map(|wait| wait.min(state.max_wait));
+    Ok(match wait {
+        Some(wait) if !wait.is_zero() => waited(&state, &entry, replayed, wait).await,
+        _ => created(&state, &entry, replayed),
     })
+}
+
+/// The `wait` preference of RFC 7240 (`Prefer: wait=N`, seconds), if sent and well formed;
+/// other preferences, and malformed ones, are ignored as the RFC asks.
+fn preferred_wait(headers: &HeaderMap) -> Option<Duration> {
+    headers
+        .get_all(PREFER)
+        .iter()
+        .filter_map(|value| value.to_str().ok())
+        .flat_map(|value| value.split(','))
+        .find_map(|preference| {
+            let (name, value) = preference.split_once('=')?;
+            let value = value.split(';').next()?.trim().trim_matches('"');
+            (name.trim().eq_ignore_ascii_case("wait"))
+                .then(|| value.parse::<u64>().ok())
+                .flatten()
+        })
+        .map(Duration::from_secs)
+}
+
+/// Waits up to `wait` for the job to end: 200 with the ended job, else 202 with it as it is
+/// (the job goes on; poll `Location`). Both carry `Preference-Applied`. A server shutdown
+/// ends the wait early.
+async fn waited(state: &AppState, entry: &JobEntry, replayed: bool, wait: Duration) -> Response {
+    let mut record = entry.record.subscribe();
+    let mut shutdown = state.shutdown.subscribe();
+    let ended = tokio::select! {
+        result = tokio::time::timeout(wait, record.wait_for(|r| r.status.is_terminal())) => {
+            matches!(result, Ok(Ok(_)))
+        }
+        _ = shutdown.wait_for(|&stopping| stopping) => false,
+    };
+    let mut response = created(state, entry, replayed);
+    *response.status_mut() = if ended {
+        StatusCode::OK
+    } else {
+        StatusCode::ACCEPTED
+    };
+    let applied = HeaderValue::from_str(&format!("wait={}", wait.as_secs()))
+        .expect("digits are a header value");
+    response.headers_mut().insert("preference-applied", applied);
+    response
 }
 
 /// 201 + `Location` + the job (also for an idempotent replay, marked `Idempotent-Replayed`).

@@ -67,6 +67,9 @@ pub struct Config {
     pub cors_origins: Vec<String>,
     /// How long running jobs may finish after a shutdown signal. Default 30 s.
     pub shutdown_grace: Duration,
+    /// Longest `Prefer: wait` honoured on a submission (RFC 7240); longer requests wait this
+    /// long. Default 60 s; 0 ignores the preference.
+    pub max_wait: Duration,
 }
 
 impl Default for Config {
@@ -80,6 +83,7 @@ impl Default for Config {
             api_keys: Vec::new(),
             cors_origins: Vec::new(),
             shutdown_grace: Duration::from_secs(30),
+            max_wait: Duration::from_secs(60),
         }
     }
 }
@@ -94,6 +98,7 @@ pub struct AppState {
     cors_origins: Arc<Vec<String>>,
     /// Becomes true when the server begins to stop (ends event streams).
     shutdown: watch::Sender<bool>,
+    max_wait: Duration,
 }
 
 /// Why the server could not start or stopped with an error.
@@ -149,6 +154,7 @@ impl AppState {
             ),
             cors_origins: Arc::new(config.cors_origins.clone()),
             shutdown: watch::Sender::new(false),
+            max_wait: config.max_wait,
         })
     }
 }
