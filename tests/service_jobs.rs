@@ -497,3 +497,52 @@ async fn prefer_wait_answers_with_the_finished_job_or_202_in_time() {
     assert_eq!(plain.status, StatusCode::CREATED, "{}", plain.text());
     assert!(plain.header("preference-applied").is_none());
 }
+
+/// (id, event name) of each event of a job's stream, read to its end, resuming after `last`.
+async fn stream(server: &Server, path: &str, last: Option<&str>) -> Vec<(String, String)> {
+    let headers: Vec<(&str, &str)> = last.map(|v| ("last-event-id", v)).into_iter().collect();
+    let reply = server
+        .request(Method::GET, path, &headers, Vec::new())
+        .await;
+    assert_eq!(reply.status, StatusCode::OK, "{}", reply.text());
+    event_ids(&reply.text())
+}
+
+/// (id, event name) of each event in an SSE body.
+fn event_ids(text: &str) -> Vec<(String, String)> {
+    text.split("\n\n")
+        .filter_map(|block| {
+            let field = |name: &str| {
+                block
+                    .lines()
+                    .find_map(|line| line.strip_prefix(name).map(|v| v.trim().to_owned()))
+            };
+            Some((field("id:")?, field("event:")?))
+        })
+        .collect()
+}
+
+#[tokio::test]
+async fn a_resumed_event_stream_repeats_nothing_and_misses_nothing() {
+    let dir = DataDir::new("resume");
+    let server = Server::start(&dir.0, &["--workers", "1"]);
+    let id = submit_quick(&server).await;
+    server.wait_for(&id, PATIENCE, terminal).await;
+    let path = format!("/v1/jobs/{id}/events");
+    let first = stream(&server, &path, None).await;
+    assert_eq!(first.len(), 1, "{first:?}");
+    let (last_id, name) = &first[0];
+    assert_eq!(name, "completed");
+    let digest = last_id.strip_prefix("0.").expect("ids are sequence.digest");
+
+    // Resuming with the id of the ended state: nothing more to send.
+    assert!(stream(&server, &path, Some(last_id)).await.is_empty());
+    // With an id of an older state: the current one, numbered after it.
+    let resumed = stream(&server, &path, Some("4.0000000000000000")).await;
+    assert_eq!(
+        resumed,
+        vec![(format!("5.{digest}"), "completed".to_owned())]
+    );
+    // A malformed id is ignored.
+    assert_eq!(stream(&server, &path, Some("soon")).await, first);
+}

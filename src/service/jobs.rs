@@ -337,41 +337,116 @@ async fn events(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
+    headers: HeaderMap,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     let entry = find(&state, &owner, &id)?;
     let receiver = entry.record.subscribe();
     let shutdown = state.shutdown.subscribe();
+    let resumed = headers
+        .get(LAST_EVENT_ID)
+        .and_then(|value| value.to_str().ok())
+        .and_then(EventId::parse);
+    let start = Cursor {
+        sequence: resumed.map_or(0, |id| id.sequence + 1),
+        waiting: false,
+        seen: resumed.map(|id| id.digest),
+        done: false,
+    };
     let stream = futures_util::stream::unfold(
-        (receiver, shutdown, state, 0_u64, false),
-        |(mut receiver, mut shutdown, state, sequence, done)| async move {
-            if done {
+        (receiver, shutdown, state, start),
+        |(mut receiver, mut shutdown, state, mut cursor)| async move {
+            if cursor.done {
                 return None;
             }
-            if sequence > 0 {
-                tokio::time::sleep(EVENT_INTERVAL).await;
-                tokio::select! {
-                    changed = receiver.changed() => changed.ok()?,
-                    _ = shutdown.wait_for(|stopping| *stopping) => return None,
+            loop {
+                if cursor.waiting {
+                    tokio::time::sleep(EVENT_INTERVAL).await;
+                    tokio::select! {
+                        changed = receiver.changed() => changed.ok()?,
+                        _ = shutdown.wait_for(|stopping| *stopping) => return None,
+                    }
                 }
+                let record = receiver.borrow_and_update().clone();
+                let position = if record.status == Status::Queued {
+                    state.queue.queue_position(&record.id)
+                } else {
+                    None
+                };
+                let terminal = record.status.is_terminal();
+                let data = serde_json::to_string(&JobView::new(&record, position))
+                    .expect("views serialise");
+                let digest = EventId::digest_of(&data);
+                if cursor.seen.take() == Some(digest) {
+                    // The client has this state already (it resumed with its id).
+                    if terminal {
+                        return None;
+                    }
+                    cursor.waiting = true;
+                    continue;
+                }
+                let id = EventId {
+                    sequence: cursor.sequence,
+                    digest,
+                };
+                let event = Event::default()
+                    .id(id.to_string())
+                    .event(if terminal { "completed" } else { "progress" })
+                    .data(data);
+                let next = Cursor {
+                    sequence: cursor.sequence + 1,
+                    waiting: true,
+                    seen: None,
+                    done: terminal,
+                };
+                return Some((Ok(event), (receiver, shutdown, state, next)));
             }
-            let record = receiver.borrow_and_update().clone();
-            let position = if record.status == Status::Queued {
-                state.queue.queue_position(&record.id)
-            } else {
-                None
-            };
-            let terminal = record.status.is_terminal();
-            let data =
-                serde_json::to_string(&JobView::new(&record, position)).expect("views serialise");
-            let event = Event::default()
-                .id(sequence.to_string())
-                .event(if terminal { "completed" } else { "progress" })
-                .data(data);
-            Some((
-                Ok(event),
-                (receiver, shutdown, state, sequence + 1, terminal),
-            ))
         },
     );
     Ok(Sse::new(stream).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))))
+}
+
+const LAST_EVENT_ID: &str = "last-event-id";
+
+/// Where an event stream stands.
+#[derive(Clone, Copy)]
+struct Cursor {
+    sequence: u64,
+    /// Wait for a change before the next event (not before the first).
+    waiting: bool,
+    /// The digest of the state a resuming client has: not sent again.
+    seen: Option<u64>,
+    done: bool,
+}
+
+/// An event's id, `{sequence}.{digest}`. Every event carries the job's whole state, so a
+/// client that reconnects with `Last-Event-ID` misses nothing: it gets the current state, unless
+/// the digest says it has that one already (then the next change, or, for an ended job,
+/// nothing), and sequences go on from its id.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct EventId {
+    sequence: u64,
+    digest: u64,
+}
+
+impl EventId {
+    fn parse(text: &str) -> Option<Self> {
+        let (sequence, digest) = text.trim().split_once('.')?;
+        Some(Self {
+            sequence: sequence.parse().ok()?,
+            digest: u64::from_str_radix(digest, 16).ok()?,
+        })
+    }
+
+    /// FNV-1a of the event's data: the same in every process, unlike std's hasher.
+    fn digest_of(data: &str) -> u64 {
+        data.bytes().fold(0xcbf2_9ce4_8422_2325, |hash, byte| {
+            (hash ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3)
+        })
+    }
+}
+
+impl std::fmt::Display for EventId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}.{:016x}", self.sequence, self.digest)
+    }
 }
