@@ -224,3 +224,47 @@ async fn problem_details_stay_short_and_hide_server_paths() {
     assert!(!detail.contains(root), "the data directory in {detail}");
     assert!(!detail.contains("/tmp"), "a server path in {detail}");
 }
+
+/// Many small masks decode to far more than they weigh: the decoded total is capped per job.
+#[tokio::test]
+async fn decoded_inputs_are_capped_per_job() {
+    let dir = DataDir::new("decoded-cap");
+    // A 64² image is 12 288 bytes decoded, each 64² mask 4 096: two masks fit, three do not.
+    let server = Server::start(&dir.0, &["--max-decoded-bytes", "20480"]);
+    let image = service_support::test_png(64);
+    let mut square = image::GrayImage::new(64, 64);
+    for y in 16..48 {
+        for x in 16..48 {
+            square.put_pixel(x, y, image::Luma([255]));
+        }
+    }
+    let mask = service_support::png(&image::DynamicImage::ImageLuma8(square));
+    let params = br#"{"paths": 8, "max_size": 64}"#.as_slice();
+    let two = [
+        ("image", image.as_slice()),
+        ("mask", mask.as_slice()),
+        ("mask", mask.as_slice()),
+        ("params", params),
+    ];
+    let accepted = server.submit(&two, &[]).await;
+    assert_eq!(accepted.status, StatusCode::CREATED, "{}", accepted.text());
+
+    let three = [
+        ("image", image.as_slice()),
+        ("mask", mask.as_slice()),
+        ("mask", mask.as_slice()),
+        ("mask", mask.as_slice()),
+        ("params", params),
+    ];
+    let refused = server.submit(&three, &[]).await;
+    assert_eq!(
+        refused.status,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "{}",
+        refused.text()
+    );
+    let problem = service_support::problem(&refused);
+    assert_eq!(problem["code"], "inputs-too-large");
+    assert_eq!(problem["limit"], 20480);
+    assert_eq!(problem["actual"], 24576);
+}

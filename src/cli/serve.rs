@@ -46,6 +46,12 @@ pub struct ServeArgs {
     /// Largest total iteration budget of one job.
     #[arg(long, env = "COVEC_MAX_ITERATIONS", default_value_t = InputLimits::default().max_iterations)]
     max_iterations: u64,
+    /// Largest total of a job's decoded inputs (image, albedo, masks), in bytes.
+    #[arg(long, env = "COVEC_MAX_DECODED_BYTES", default_value_t = InputLimits::default().max_decoded_bytes)]
+    max_decoded_bytes: u64,
+    /// Requests that decode their inputs at once; others wait their turn.
+    #[arg(long, env = "COVEC_DECODE_SLOTS", default_value_t = InputLimits::default().decode_slots)]
+    decode_slots: usize,
     /// Wall-clock limit of one job, in seconds; then it fails with code `time-limit`.
     #[arg(long, env = "COVEC_JOB_TIME_LIMIT", default_value_t = QueueConfig::default().job_time_limit.as_secs())]
     job_time_limit: u64,
@@ -102,6 +108,8 @@ impl ServeArgs {
                 max_paths: self.max_paths,
                 max_size: self.max_size,
                 max_iterations: self.max_iterations,
+                max_decoded_bytes: self.max_decoded_bytes,
+                decode_slots: self.decode_slots.max(1),
             },
             connections: ConnectionLimits {
                 header_read_timeout: Duration::from_secs(self.header_read_timeout),

@@ -55,6 +55,8 @@ pub enum ApiError {
     TooManyPixels { limit: u64, actual: u64 },
     #[error("{actual} masks were sent, more than the limit of {limit}")]
     TooManyMasks { limit: u64, actual: u64 },
+    #[error("the decoded inputs reach {actual} bytes, more than the limit of {limit}")]
+    InputsTooLarge { limit: u64, actual: u64 },
     #[error("malformed request: {0}")]
     BadRequest(String),
     #[error("invalid query: {0}")]
@@ -92,9 +94,10 @@ impl ApiError {
             MalformedJobId(_) | BadRequest(_) | BadQuery(_) => StatusCode::BAD_REQUEST,
             MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
             UnsupportedMediaType(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
-            BodyTooLarge { .. } | TooManyPixels { .. } | TooManyMasks { .. } => {
-                StatusCode::PAYLOAD_TOO_LARGE
-            }
+            BodyTooLarge { .. }
+            | TooManyPixels { .. }
+            | TooManyMasks { .. }
+            | InputsTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
             UndecodableImage(..) | InvalidParams(_) | InvalidInput(_) | IdempotencyMismatch => {
                 StatusCode::UNPROCESSABLE_ENTITY
             }
@@ -120,6 +123,7 @@ impl ApiError {
             BodyTooLarge { .. } => "body-too-large",
             TooManyPixels { .. } => "too-many-pixels",
             TooManyMasks { .. } => "too-many-masks",
+            InputsTooLarge { .. } => "inputs-too-large",
             BadRequest(_) => "bad-request",
             BadQuery(_) => "bad-query",
             UndecodableImage(..) => "undecodable-image",
@@ -148,7 +152,8 @@ impl ApiError {
         let status = self.status();
         let (limit, actual) = match self {
             ApiError::TooManyPixels { limit, actual }
-            | ApiError::TooManyMasks { limit, actual } => (Some(*limit), Some(*actual)),
+            | ApiError::TooManyMasks { limit, actual }
+            | ApiError::InputsTooLarge { limit, actual } => (Some(*limit), Some(*actual)),
             ApiError::BodyTooLarge { limit } => (Some(*limit), None),
             _ => (None, None),
         };

@@ -88,7 +88,12 @@ async fn create(
         }
         state.queue.check_capacity()?;
     }
-    // Decoding is CPU work: off the async workers.
+    // Decoding is CPU work: off the async workers, and a few requests at a time.
+    let _slot = state
+        .decode_slots
+        .acquire()
+        .await
+        .map_err(|error| ApiError::Internal(error.to_string()))?;
     let limits = state.limits.clone();
     let submission = tokio::task::spawn_blocking(move || {
         decode_inputs(

@@ -31,6 +31,13 @@ pub struct InputLimits {
     /// Largest total iteration budget ([`crate::Iterations::total`]). Default 5000 (the defaults
     /// add up to 650).
     pub max_iterations: u64,
+    /// Largest total of a job's decoded inputs in bytes (image and albedo at 3 bytes a pixel,
+    /// masks at 1, a label map as decoded), counted as they decode. Default 256 MiB: 256 masks
+    /// of 4000² would otherwise hold 4 GB.
+    pub max_decoded_bytes: u64,
+    /// Requests that decode their inputs at once; others wait their turn. Default 2: with the
+    /// decoded budget this bounds the memory decoding can take.
+    pub decode_slots: usize,
 }
 
 impl InputLimits {
@@ -61,6 +68,8 @@ impl Default for InputLimits {
             max_paths: 1024,
             max_size: 1024,
             max_iterations: 5000,
+            max_decoded_bytes: 256 << 20,
+            decode_slots: 2,
         }
     }
 }
@@ -314,23 +323,43 @@ pub fn decode_inputs(
         ));
     }
     let decode_limits = limits.decoding();
+    let mut decoded = 0u64;
+    let mut count = |bytes: usize| {
+        decoded += bytes as u64;
+        if decoded > limits.max_decoded_bytes {
+            return Err(ApiError::InputsTooLarge {
+                limit: limits.max_decoded_bytes,
+                actual: decoded,
+            });
+        }
+        Ok(())
+    };
     let image = imageio::decode_image(image, &decode_limits).map_err(input_error("image"))?;
-    let albedo = albedo
-        .map(|bytes| imageio::decode_image(bytes, &decode_limits).map_err(input_error("albedo")))
-        .transpose()?;
+    count(image.as_bytes().len())?;
+    let albedo = match albedo {
+        Some(bytes) => {
+            let albedo =
+                imageio::decode_image(bytes, &decode_limits).map_err(input_error("albedo"))?;
+            count(albedo.as_bytes().len())?;
+            Some(albedo)
+        }
+        None => None,
+    };
     let masks = if let Some(labels) = labels {
-        Masks::Labels(
-            imageio::decode_labels(labels, &decode_limits).map_err(input_error("label map"))?,
-        )
+        let labels =
+            imageio::decode_labels(labels, &decode_limits).map_err(input_error("label map"))?;
+        count(labels.as_bytes().len())?;
+        Masks::Labels(labels)
     } else if masks.is_empty() {
         Masks::None
     } else {
         let mut binary = Vec::with_capacity(masks.len());
         for (index, bytes) in masks.iter().enumerate() {
             let name = format!("mask {index}");
-            binary.push(
-                imageio::decode_mask(&name, bytes, &decode_limits).map_err(input_error("mask"))?,
-            );
+            let mask =
+                imageio::decode_mask(&name, bytes, &decode_limits).map_err(input_error("mask"))?;
+            count(mask.len())?;
+            binary.push(mask);
         }
         Masks::Binary(binary)
     };
