@@ -88,14 +88,15 @@ async fn create(
         }
         state.queue.check_capacity()?;
     }
-    // Decoding is CPU work: off the async workers, and a few requests at a time.
-    let _slot = state
-        .decode_slots
-        .acquire()
+    // Decoding is CPU work: off the async workers, and a few requests at a time. The slot goes
+    // with the decoding, which runs on even if the client leaves.
+    let slot = Arc::clone(&state.decode_slots)
+        .acquire_owned()
         .await
         .map_err(|error| ApiError::Internal(error.to_string()))?;
     let limits = state.limits.clone();
     let submission = tokio::task::spawn_blocking(move || {
+        let _slot = slot;
         decode_inputs(
             &submission.image,
             submission.albedo.as_deref(),
