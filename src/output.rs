@@ -63,19 +63,24 @@ pub struct Artefact {
     pub bytes: Vec<u8>,
 }
 
-/// The files of `kinds` for `scene`, in that order. Equal scenes give byte-identical files.
+/// The files of `kinds` for `scene`, in that order, with default SVG options. Equal scenes give
+/// byte-identical files.
 pub fn artefacts(scene: &Scene, kinds: &[FileKind]) -> Vec<Artefact> {
-    let options = SvgOptions::default();
+    artefacts_with(scene, kinds, &SvgOptions::default())
+}
+
+/// [`artefacts`] with the SVGs formatted as `options` say.
+pub fn artefacts_with(scene: &Scene, kinds: &[FileKind], options: &SvgOptions) -> Vec<Artefact> {
     kinds
         .iter()
         .map(|&kind| Artefact {
             kind,
             bytes: match kind {
-                FileKind::LayeredSvg => svg::to_svg(scene, &options).into_bytes(),
+                FileKind::LayeredSvg => svg::to_svg(scene, options).into_bytes(),
                 FileKind::SceneJson => {
                     serde_json::to_vec_pretty(scene).expect("a scene always serialises")
                 }
-                FileKind::Layer(layer) => svg::layer_to_svg(scene, layer, &options).into_bytes(),
+                FileKind::Layer(layer) => svg::layer_to_svg(scene, layer, options).into_bytes(),
                 FileKind::Preview => encode_png(&composite(scene)),
             },
         })

@@ -10,9 +10,10 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::io::{self, IoError};
 use covec::imageio::{self, Limits};
-use covec::output::FileKind;
+use covec::output::{self, FileKind, RESULT_FILES};
 use covec::pipeline::{self, Inputs, Masks, Mode, Observer, Params, Progress};
 use covec::render::Image;
+use covec::svg::{self, SvgOptions};
 
 /// Vectorize an image into a layered SVG (albedo × shade + light).
 #[derive(ClapArgs, Debug)]
@@ -60,6 +61,10 @@ pub struct Args {
     /// Also write each layer as a standalone SVG here (albedo.svg, shade.svg, light.svg).
     #[arg(long, value_name = "DIR")]
     pub layers: Option<PathBuf>,
+    /// Decimals of the SVGs' coordinates (0-6). Default: 1 up to a working long side of 1024 px,
+    /// 2 above. The JSON scene always keeps full precision.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=i64::from(svg::MAX_PRECISION)))]
+    pub precision: Option<u32>,
     /// Refuse images (and masks) of more pixels than this.
     #[arg(long, default_value_t = Limits::default().max_pixels, value_name = "N")]
     pub max_pixels: u64,
@@ -138,7 +143,11 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if let Some(dir) = &args.layers {
         io::create_dir(dir)?;
     }
-    io::write_artefacts(&output.artefacts(), |kind| match kind {
+    let svg_options = SvgOptions {
+        precision: args.precision,
+    };
+    let artefacts = output::artefacts_with(&output.scene, RESULT_FILES, &svg_options);
+    io::write_artefacts(&artefacts, |kind| match kind {
         FileKind::LayeredSvg => Some(svg_path.clone()),
         FileKind::SceneJson => Some(json_path.clone()),
         FileKind::Layer(layer) => {
