@@ -3,7 +3,8 @@
 //!
 //! Rules, so that browsers show what covec's renderer optimised: blend modes in `style`
 //! (browsers and resvg ignore the attribute form), `isolation:isolate` on the root, colours and opacities clamped to [0, 1],
-//! explicit `fill-rule="nonzero"`, paths closed with `Z`. Output depends only on the scene, so
+//! explicit `fill-rule="nonzero"`, paths closed with `Z`. Each layer's group is an Inkscape
+//! layer with a `<title>`. Output depends only on the scene, so
 //! equal scenes give byte-identical files.
 
 use std::fmt::Write;
@@ -48,7 +49,7 @@ pub fn to_svg(scene: &Scene, options: &SvgOptions) -> String {
             LayerKind::Shade => " style=\"mix-blend-mode:multiply\"",
             LayerKind::Light => " style=\"mix-blend-mode:plus-lighter\"",
         };
-        let _ = writeln!(out, "<g id=\"{}\"{blend}>", kind.name());
+        open_group(&mut out, kind, blend);
         write_paths(&mut out, scene, kind, options);
         out.push_str("</g>\n");
     }
@@ -68,7 +69,7 @@ pub fn layer_to_svg(scene: &Scene, kind: LayerKind, options: &SvgOptions) -> Str
         scene.height,
         hex_colour(kind.base())
     );
-    let _ = writeln!(out, "<g id=\"{}\">", kind.name());
+    open_group(&mut out, kind, "");
     write_paths(&mut out, scene, kind, options);
     out.push_str("</g>\n</svg>\n");
     out
@@ -76,9 +77,27 @@ pub fn layer_to_svg(scene: &Scene, kind: LayerKind, options: &SvgOptions) -> Str
 
 fn header(scene: &Scene) -> String {
     format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\" style=\"isolation:isolate\">\n",
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" xmlns:inkscape=\"{INKSCAPE_NS}\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\" style=\"isolation:isolate\">\n",
         scene.original_width, scene.original_height, scene.width, scene.height
     )
+}
+
+/// Inkscape's namespace, for its layer attributes.
+const INKSCAPE_NS: &str = "http://www.inkscape.org/namespaces/inkscape";
+
+/// `<g>` of a layer's paths, with `attributes` (e.g. its blend mode). Marked as an Inkscape layer
+/// and titled, so design tools list the three layers by name instead of as anonymous groups.
+fn open_group(out: &mut String, kind: LayerKind, attributes: &str) {
+    let title = match kind {
+        LayerKind::Albedo => "albedo (surface colour)",
+        LayerKind::Shade => "shade (multiplies the albedo)",
+        LayerKind::Light => "light (added to albedo × shade)",
+    };
+    let name = kind.name();
+    let _ = writeln!(
+        out,
+        "<g id=\"{name}\" inkscape:groupmode=\"layer\" inkscape:label=\"{name}\"{attributes}>\n<title>{title}</title>"
+    );
 }
 
 fn write_paths(out: &mut String, scene: &Scene, kind: LayerKind, options: &SvgOptions) {

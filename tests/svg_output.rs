@@ -96,6 +96,15 @@ fn the_layered_svg_has_the_structure_browsers_need() {
     let groups: Vec<_> = root.children().filter(|n| n.is_element()).collect();
     let ids: Vec<_> = groups.iter().map(|g| g.attribute("id").unwrap()).collect();
     assert_eq!(ids, ["albedo", "shade", "light"]);
+    // Inkscape layers, named and titled.
+    let inkscape = |name| ("http://www.inkscape.org/namespaces/inkscape", name);
+    for (group, name) in groups.iter().zip(ids) {
+        assert_eq!(group.attribute(inkscape("groupmode")), Some("layer"));
+        assert_eq!(group.attribute(inkscape("label")), Some(name));
+        let title = group.first_element_child().unwrap();
+        assert!(title.has_tag_name("title"));
+        assert!(title.text().unwrap().starts_with(name));
+    }
     assert_eq!(groups[0].attribute("style"), None);
     assert_eq!(
         groups[1].attribute("style"),
@@ -106,7 +115,10 @@ fn the_layered_svg_has_the_structure_browsers_need() {
         Some("mix-blend-mode:plus-lighter")
     );
     for (group, kind) in groups.iter().zip(LayerKind::ALL) {
-        let paths: Vec<_> = group.children().filter(|n| n.is_element()).collect();
+        let paths: Vec<_> = group
+            .children()
+            .filter(|n| n.has_tag_name("path"))
+            .collect();
         assert_eq!(paths.len(), scene.layer(kind).paths.len());
         for (index, path) in paths.iter().enumerate() {
             assert_eq!(path.tag_name().name(), "path");
@@ -139,7 +151,10 @@ fn the_layered_svg_has_the_structure_browsers_need() {
         }
     }
     // The albedo layer starts with an opaque full-canvas base path.
-    let base = groups[0].children().find(|n| n.is_element()).unwrap();
+    let base = groups[0]
+        .children()
+        .find(|n| n.has_tag_name("path"))
+        .unwrap();
     assert_eq!(base.attribute("fill-opacity"), Some("1"));
     assert_eq!(
         base.attribute("d"),
