@@ -99,6 +99,8 @@ pub struct AppState {
     /// Becomes true when the server begins to stop (ends event streams).
     shutdown: watch::Sender<bool>,
     max_wait: Duration,
+    /// Bounds the PNG renders running at once ([`results::PNG_RENDERS`]).
+    png_renders: Arc<tokio::sync::Semaphore>,
 }
 
 /// Why the server could not start or stopped with an error.
@@ -155,6 +157,7 @@ impl AppState {
             cors_origins: Arc::new(config.cors_origins.clone()),
             shutdown: watch::Sender::new(false),
             max_wait: config.max_wait,
+            png_renders: Arc::new(tokio::sync::Semaphore::new(results::PNG_RENDERS)),
         })
     }
 }
