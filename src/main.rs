@@ -20,6 +20,7 @@ struct Cli {
 enum Command {
     Vectorize(cli::vectorize::Args),
     Edit(cli::edit::Args),
+    Render(cli::render::Args),
     Eval(cli::eval::Args),
     /// Run the HTTP vectorisation service (jobs API, progress, results; see api/openapi.yaml).
     Serve(cli::serve::ServeArgs),
@@ -30,6 +31,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Vectorize(args) => cli::vectorize::run(&args).map_err(|e| e.to_string()),
         Command::Edit(args) => cli::edit::run(&args).map_err(|e| e.to_string()),
+        Command::Render(args) => cli::render::run(&args).map_err(|e| e.to_string()),
         Command::Eval(args) => cli::eval::run(&args).map_err(|e| e.to_string()),
         Command::Serve(args) => return cli::serve::run(args),
     };

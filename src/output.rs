@@ -54,6 +54,65 @@ pub const RESULT_FILES: &[FileKind] = &[
 /// An edit's files.
 pub const EDIT_FILES: &[FileKind] = &[FileKind::SceneJson, FileKind::LayeredSvg, FileKind::Preview];
 
+/// Why a scene cannot be rasterised at the size asked for.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum RasterError {
+    /// A width of 0.
+    #[error("the width must be at least 1 pixel")]
+    ZeroWidth,
+    /// A scene without a canvas (only a hand-made JSON can have one).
+    #[error("the scene's canvas has no pixels")]
+    EmptyCanvas,
+    /// More pixels than the caller allows.
+    #[error("a {width} px wide raster has {actual} pixels, more than the limit of {limit}")]
+    TooManyPixels {
+        /// The width asked for.
+        width: u32,
+        /// Its pixels at the scene's aspect ratio.
+        actual: u64,
+        /// The most allowed.
+        limit: u64,
+    },
+}
+
+/// Width and height of a raster of `scene` `width` pixels wide (default: the original image's
+/// width): the height keeps the working canvas's aspect ratio (rounded, at least 1), and the two
+/// multiply to at most `max_pixels`.
+pub fn raster_size(
+    scene: &Scene,
+    width: Option<u32>,
+    max_pixels: u64,
+) -> Result<(u32, u32), RasterError> {
+    let width = width.unwrap_or(scene.original_width);
+    if width == 0 {
+        return Err(RasterError::ZeroWidth);
+    }
+    if scene.width == 0 || scene.height == 0 {
+        return Err(RasterError::EmptyCanvas);
+    }
+    let height = (f64::from(scene.height) * f64::from(width) / f64::from(scene.width))
+        .round()
+        .clamp(1.0, f64::from(u32::MAX)) as u32;
+    let actual = u64::from(width) * u64::from(height);
+    if actual > max_pixels {
+        return Err(RasterError::TooManyPixels {
+            width,
+            actual,
+            limit: max_pixels,
+        });
+    }
+    Ok((width, height))
+}
+
+/// PNG of `scene` as shown, at [`raster_size`], drawn by covec's own renderer with the geometry
+/// scaled by width / working width: the picture that was optimised, at any size, without relying
+/// on a viewer's blend modes.
+pub fn png(scene: &Scene, width: Option<u32>, max_pixels: u64) -> Result<Vec<u8>, RasterError> {
+    let (w, h) = raster_size(scene, width, max_pixels)?;
+    let scaled = scene.rescaled(w as f32 / scene.width as f32, w, h);
+    Ok(encode_png(&composite(&scaled)))
+}
+
 /// One file's contents.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Artefact {
@@ -63,19 +122,24 @@ pub struct Artefact {
     pub bytes: Vec<u8>,
 }
 
-/// The files of `kinds` for `scene`, in that order. Equal scenes give byte-identical files.
+/// The files of `kinds` for `scene`, in that order, with default SVG options. Equal scenes give
+/// byte-identical files.
 pub fn artefacts(scene: &Scene, kinds: &[FileKind]) -> Vec<Artefact> {
-    let options = SvgOptions::default();
+    artefacts_with(scene, kinds, &SvgOptions::default())
+}
+
+/// [`artefacts`] with the SVGs formatted as `options` say.
+pub fn artefacts_with(scene: &Scene, kinds: &[FileKind], options: &SvgOptions) -> Vec<Artefact> {
     kinds
         .iter()
         .map(|&kind| Artefact {
             kind,
             bytes: match kind {
-                FileKind::LayeredSvg => svg::to_svg(scene, &options).into_bytes(),
+                FileKind::LayeredSvg => svg::to_svg(scene, options).into_bytes(),
                 FileKind::SceneJson => {
                     serde_json::to_vec_pretty(scene).expect("a scene always serialises")
                 }
-                FileKind::Layer(layer) => svg::layer_to_svg(scene, layer, &options).into_bytes(),
+                FileKind::Layer(layer) => svg::layer_to_svg(scene, layer, options).into_bytes(),
                 FileKind::Preview => encode_png(&composite(scene)),
             },
         })

@@ -205,6 +205,23 @@ impl Scene {
             .sum()
     }
 
+    /// A copy on a `width × height` canvas with every point multiplied by `factor`; colours,
+    /// opacities and the original size are kept.
+    pub fn rescaled(&self, factor: f32, width: u32, height: u32) -> Scene {
+        let mut out = self.clone();
+        out.width = width;
+        out.height = height;
+        for kind in LayerKind::ALL {
+            for path in &mut out.layer_mut(kind).paths {
+                for p in &mut path.points {
+                    p.x *= factor;
+                    p.y *= factor;
+                }
+            }
+        }
+        out
+    }
+
     /// Looks a path up by its id (see [`PathId`]).
     pub fn path(&self, id: PathId) -> Option<&Path> {
         self.layer(id.layer).paths.get(id.index)

@@ -132,6 +132,8 @@ fn help_explains_every_option() {
         "--layers",
         "--max-pixels",
         "--max-masks",
+        "--precision",
+        "--width",
     ] {
         assert!(help.contains(option), "{option} missing from --help");
     }
@@ -324,4 +326,106 @@ fn eval_writes_scenes_with_known_layers_and_scores_the_decomposition() {
     assert!(column(simple, "albedo_ratio") > 0.9, "{text}");
     assert!(column(photo, "highlight_coverage") > 0.5, "{text}");
     assert!(row("photo-retinex").contains(",16,"));
+}
+
+/// Mean absolute difference of two same-sized RGB images, in 1/255.
+fn mean_abs_255(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let sum: f64 = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| f64::from(x.abs_diff(y)))
+        .sum();
+    sum / a.as_raw().len() as f64
+}
+
+#[test]
+fn vectorize_and_render_write_pngs_of_any_width() {
+    let dir = scratch("png");
+    let (png, json) = (dir.join("apple.png"), dir.join("apple.json"));
+    let vectorize = |extra: &[&str]| {
+        let mut args = vec!["vectorize", APPLE, "-o", png.to_str().unwrap()];
+        args.extend_from_slice(&["--max-size", "32", "--paths", "8"]);
+        args.extend_from_slice(extra);
+        let out = covec(&args);
+        assert!(out.status.success(), "{}", stderr(&out));
+    };
+    // Default width: the input's (256), next to the JSON scene; no SVG.
+    vectorize(&[]);
+    assert_eq!(
+        image::open(&png).unwrap().to_rgb8().dimensions(),
+        (256, 256)
+    );
+    assert!(json.is_file() && !dir.join("apple.svg").exists());
+
+    // At twice the working size, averaged over 2×2 blocks, it is covec's working-size render.
+    vectorize(&["--width", "64"]);
+    let big = image::open(&png).unwrap().to_rgb8();
+    assert_eq!(big.dimensions(), (64, 64));
+    let scene: covec::scene::Scene =
+        serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let working = covec::imageio::encode_png(&covec::render::composite::composite(&scene));
+    let working = image::load_from_memory(&working).unwrap().to_rgb8();
+    let halved = image::RgbImage::from_fn(32, 32, |x, y| {
+        let block = [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(dx, dy)| big[(2 * x + dx, 2 * y + dy)]);
+        image::Rgb(std::array::from_fn(|c| {
+            let sum: u32 = block.iter().map(|p| u32::from(p[c])).sum();
+            ((sum + 2) / 4) as u8
+        }))
+    });
+    let error = mean_abs_255(&halved, &working);
+    assert!(error < 1.0, "mean |Δ| = {error:.2}/255");
+
+    // `covec render` of the same scene at the same width gives the same bytes.
+    let rendered = dir.join("rendered.png");
+    let out = covec(&[
+        "render",
+        json.to_str().unwrap(),
+        "-o",
+        rendered.to_str().unwrap(),
+        "--width",
+        "64",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(
+        std::fs::read(&rendered).unwrap(),
+        std::fs::read(&png).unwrap()
+    );
+}
+
+#[test]
+fn png_outputs_refuse_bad_widths_in_one_line() {
+    let dir = scratch("png-errors");
+    let (png, svg) = (dir.join("a.png"), dir.join("a.svg"));
+    let vectorize = |out: &std::path::Path, width: &str| {
+        covec(&[
+            "vectorize",
+            APPLE,
+            "-o",
+            out.to_str().unwrap(),
+            "--max-size",
+            "16",
+            "--paths",
+            "8",
+            "--width",
+            width,
+        ])
+    };
+    assert_one_line_error(&vectorize(&png, "0"), "at least 1 pixel");
+    assert_one_line_error(&vectorize(&svg, "10"), "give -o a .png path");
+    let scene = dir.join("a.json");
+    assert!(
+        scene.is_file(),
+        "the scene is written before the PNG is refused"
+    );
+    let render = |args: &[&str]| {
+        let mut all = vec!["render", scene.to_str().unwrap()];
+        all.extend_from_slice(args);
+        covec(&all)
+    };
+    assert_one_line_error(&render(&["--width", "100000"]), "more than the limit");
+    assert_one_line_error(&render(&["-o", svg.to_str().unwrap()]), "writes PNG");
+    let out = covec(&["render", APPLE]);
+    assert_one_line_error(&out, "is not a covec scene");
 }

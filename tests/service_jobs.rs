@@ -546,3 +546,81 @@ async fn a_resumed_event_stream_repeats_nothing_and_misses_nothing() {
     // A malformed id is ignored.
     assert_eq!(stream(&server, &path, Some("soon")).await, first);
 }
+
+#[tokio::test]
+async fn png_renders_at_any_width_as_the_cli_does_within_the_pixel_limit() {
+    let dir = DataDir::new("png");
+    let mut args = vec!["--workers", "1", "--max-pixels", "20000"];
+    args.extend_from_slice(BIG_BUDGET);
+    let server = Server::start(&dir.0, &args);
+    let code = |reply: &service_support::Reply| (reply.status, problem(reply)["code"].clone());
+
+    // Not before the job has succeeded, as for the other results.
+    let long = submit_long(&server).await;
+    let early = server.get(&format!("/v1/jobs/{long}/png?width=10")).await;
+    assert_eq!(
+        code(&early),
+        (StatusCode::CONFLICT, json!("job-not-succeeded"))
+    );
+    let cancel = format!("/v1/jobs/{long}/cancel");
+    let canceled = server.request(Method::POST, &cancel, &[], Vec::new()).await;
+    assert_eq!(canceled.status, StatusCode::ACCEPTED, "{}", canceled.text());
+
+    let id = submit_quick(&server).await;
+    let job = server.wait_for(&id, PATIENCE, terminal).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let png = server.get(&format!("/v1/jobs/{id}/png?width=100")).await;
+    assert_eq!(
+        (png.status, png.header("content-type")),
+        (StatusCode::OK, Some("image/png"))
+    );
+    let image = image::load_from_memory(&png.body).unwrap();
+    assert_eq!((image.width(), image.height()), (100, 100));
+
+    // The same bytes as `covec render` of the job's scene at that width.
+    let scene = server.get(&format!("/v1/jobs/{id}/scene.json")).await;
+    let (scene_path, cli_png) = (dir.0.with_extension("json"), dir.0.with_extension("png"));
+    std::fs::write(&scene_path, &scene.body).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_covec"))
+        .arg("render")
+        .arg(&scene_path)
+        .arg("-o")
+        .arg(&cli_png)
+        .args(["--width", "100"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(std::fs::read(&cli_png).unwrap(), png.body.to_vec());
+
+    // Default width: the original image's (48).
+    let default = server.get(&format!("/v1/jobs/{id}/png")).await;
+    let image = image::load_from_memory(&default.body).unwrap();
+    assert_eq!((image.width(), image.height()), (48, 48));
+
+    for width in ["0", "-3", "wide", "1.5", ""] {
+        let bad = server
+            .get(&format!("/v1/jobs/{id}/png?width={width}"))
+            .await;
+        assert_eq!(
+            code(&bad),
+            (StatusCode::UNPROCESSABLE_ENTITY, json!("invalid-params")),
+            "width={width}"
+        );
+    }
+    let huge = server.get(&format!("/v1/jobs/{id}/png?width=200")).await;
+    assert_eq!(
+        code(&huge),
+        (StatusCode::PAYLOAD_TOO_LARGE, json!("too-many-pixels"))
+    );
+    assert_eq!(
+        (
+            problem(&huge)["limit"].clone(),
+            problem(&huge)["actual"].clone()
+        ),
+        (json!(20000), json!(40000))
+    );
+}

@@ -50,6 +50,28 @@ fn scene_with_light() -> Scene {
     scene
 }
 
+/// The numbers of path data as SVG's grammar splits them: a number ends at a command, a space, a
+/// sign or a second decimal point (`10.3.6` is `10.3` and `.6`).
+fn path_numbers(d: &str) -> Vec<&str> {
+    let mut numbers = Vec::new();
+    let mut start = None;
+    let mut dot = false;
+    for (i, c) in d.char_indices() {
+        let continues = c.is_ascii_digit() || (c == '.' && !dot);
+        if start.is_some() && !continues {
+            numbers.push(&d[start.take().unwrap()..i]);
+        }
+        if start.is_none() && (c.is_ascii_digit() || c == '.' || c == '-') {
+            start = Some(i);
+            dot = c == '.';
+        } else if c == '.' {
+            dot = true;
+        }
+    }
+    numbers.extend(start.map(|s| &d[s..]));
+    numbers
+}
+
 #[test]
 fn the_layered_svg_has_the_structure_browsers_need() {
     let scene = scene_with_light();
@@ -74,6 +96,15 @@ fn the_layered_svg_has_the_structure_browsers_need() {
     let groups: Vec<_> = root.children().filter(|n| n.is_element()).collect();
     let ids: Vec<_> = groups.iter().map(|g| g.attribute("id").unwrap()).collect();
     assert_eq!(ids, ["albedo", "shade", "light"]);
+    // Inkscape layers, named and titled.
+    let inkscape = |name| ("http://www.inkscape.org/namespaces/inkscape", name);
+    for (group, name) in groups.iter().zip(ids) {
+        assert_eq!(group.attribute(inkscape("groupmode")), Some("layer"));
+        assert_eq!(group.attribute(inkscape("label")), Some(name));
+        let title = group.first_element_child().unwrap();
+        assert!(title.has_tag_name("title"));
+        assert!(title.text().unwrap().starts_with(name));
+    }
     assert_eq!(groups[0].attribute("style"), None);
     assert_eq!(
         groups[1].attribute("style"),
@@ -84,7 +115,10 @@ fn the_layered_svg_has_the_structure_browsers_need() {
         Some("mix-blend-mode:plus-lighter")
     );
     for (group, kind) in groups.iter().zip(LayerKind::ALL) {
-        let paths: Vec<_> = group.children().filter(|n| n.is_element()).collect();
+        let paths: Vec<_> = group
+            .children()
+            .filter(|n| n.has_tag_name("path"))
+            .collect();
         assert_eq!(paths.len(), scene.layer(kind).paths.len());
         for (index, path) in paths.iter().enumerate() {
             assert_eq!(path.tag_name().name(), "path");
@@ -104,21 +138,27 @@ fn the_layered_svg_has_the_structure_browsers_need() {
             assert_eq!(path.attribute("fill-rule"), Some("nonzero"));
             let d = path.attribute("d").unwrap();
             assert!(d.starts_with('M') && d.ends_with('Z'), "{d}");
-            assert!(d.chars().all(|c| "MCZ -.0123456789".contains(c)), "{d}");
-            let decimals = d
-                .split(|c: char| " MCZ".contains(c))
+            assert!(d.chars().all(|c| "MCcZ -.0123456789".contains(c)), "{d}");
+            let decimals = path_numbers(d)
+                .iter()
                 .filter_map(|n| n.split_once('.'))
                 .map(|(_, f)| f.len())
                 .max();
-            assert!(decimals.unwrap_or(0) <= 2, "{d}");
+            assert!(
+                decimals.unwrap_or(0) <= 1,
+                "a 64 px canvas gets 1 decimal: {d}"
+            );
         }
     }
     // The albedo layer starts with an opaque full-canvas base path.
-    let base = groups[0].children().find(|n| n.is_element()).unwrap();
+    let base = groups[0]
+        .children()
+        .find(|n| n.has_tag_name("path"))
+        .unwrap();
     assert_eq!(base.attribute("fill-opacity"), Some("1"));
     assert_eq!(
         base.attribute("d"),
-        Some("M0 0C21.33 0 42.67 0 64 0C64 16 64 32 64 48C42.67 48 21.33 48 0 48C0 32 0 16 0 0Z")
+        Some("M0 0c21.3 0 42.7 0 64 0 0 16 0 32 0 48-21.3 0-42.7 0-64 0C0 32 0 16 0 0Z")
     );
 }
 
@@ -172,6 +212,31 @@ fn the_json_scene_round_trips_exactly() {
     assert_eq!(back, scene);
     let pretty = serde_json::to_string_pretty(&scene).unwrap();
     assert_eq!(serde_json::from_str::<Scene>(&pretty).unwrap(), scene);
+}
+
+/// Mean absolute difference of two renders, in 1/255.
+fn mean_abs_255(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum::<f32>() / a.len() as f32 * 255.0
+}
+
+#[test]
+fn rounded_coordinates_draw_as_the_full_precision_scene() {
+    let scene = scene_with_light();
+    let (w, h) = (scene.width, scene.height);
+    let draw = |precision| resvg_render(&to_svg(&scene, &SvgOptions { precision }), w, h);
+    let (compact, full) = (draw(None), draw(Some(6)));
+    let ours = covec::render::composite::composite(&scene).data;
+    let (compact_error, full_error) = (mean_abs_255(&compact, &ours), mean_abs_255(&full, &ours));
+    assert!(
+        (compact_error - full_error).abs() < 0.05,
+        "vs covec's render: {compact_error:.3}/255 rounded, {full_error:.3}/255 full precision"
+    );
+    let change = mean_abs_255(&compact, &full);
+    assert!(
+        change < 0.1,
+        "rounding changed resvg's drawing by {change:.3}/255"
+    );
 }
 
 /// resvg ≥ 0.49 implements plus-lighter; it draws the SVG as browsers do.

@@ -9,7 +9,7 @@ use covec::edit::{self, ColorChange, EditError, ReferenceParams, Target};
 use covec::imageio::{InputError, Limits, check_aspect, resize_rgb};
 use covec::output::{self, EDIT_FILES, FileKind};
 use covec::render::composite::composite;
-use covec::scene::{PathId, Point, Scene};
+use covec::scene::{PathId, Point};
 use covec::svg;
 
 /// Recolour a vectorised scene: from an edited reference image (paper Appendix D) or by path.
@@ -67,11 +67,6 @@ pub struct Args {
 pub enum Error {
     #[error(transparent)]
     Io(#[from] IoError),
-    #[error("{path} is not a covec scene: {source}")]
-    Scene {
-        path: PathBuf,
-        source: serde_json::Error,
-    },
     #[error("`{0}` is not PATH_ID=#RRGGBB (e.g. albedo-3=#cc2200)")]
     BadSet(String),
     #[error("`{0}` is not X,Y=#RRGGBB (e.g. 120.5,88=#3366ff)")]
@@ -83,11 +78,7 @@ pub enum Error {
 }
 
 pub fn run(args: &Args) -> Result<(), Error> {
-    let bytes = io::read(&args.scene)?;
-    let scene: Scene = serde_json::from_slice(&bytes).map_err(|source| Error::Scene {
-        path: args.scene.clone(),
-        source,
-    })?;
+    let scene = io::read_scene(&args.scene)?;
     let edit = match &args.reference {
         Some(reference) => {
             let params = ReferenceParams {

@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use covec::imageio::{self, InputError, Limits};
-use covec::output::{Artefact, FileKind};
+use covec::output::{self, Artefact, FileKind, RasterError};
+use covec::scene::Scene;
 
 /// A file that could not be read, written or decoded; printed as one line.
 #[derive(Debug, thiserror::Error)]
@@ -21,6 +22,13 @@ pub enum IoError {
     },
     #[error("{path}: {source}")]
     Input { path: PathBuf, source: InputError },
+    #[error("{path} is not a covec scene: {source}")]
+    Scene {
+        path: PathBuf,
+        source: serde_json::Error,
+    },
+    #[error("cannot write {path}: {source}")]
+    Raster { path: PathBuf, source: RasterError },
 }
 
 pub fn read(path: &Path) -> Result<Vec<u8>, IoError> {
@@ -58,13 +66,43 @@ pub fn list_dir(dir: &Path) -> Result<Vec<PathBuf>, IoError> {
     Ok(paths)
 }
 
+/// A file's extension in lower case ("" when it has none).
+fn extension(path: &Path) -> String {
+    path.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default()
+}
+
 /// Whether a file's extension is one covec decodes (PNG, JPEG, WebP).
 pub fn is_image_file(path: &Path) -> bool {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    matches!(ext.as_str(), "png" | "jpg" | "jpeg" | "webp")
+    matches!(extension(path).as_str(), "png" | "jpg" | "jpeg" | "webp")
+}
+
+/// Whether an output path asks for a PNG (extension `.png`, any case); other outputs are SVG.
+pub fn is_png_output(path: &Path) -> bool {
+    extension(path) == "png"
+}
+
+/// Reads a JSON scene (`covec vectorize`'s or the service's `scene.json`).
+pub fn read_scene(path: &Path) -> Result<Scene, IoError> {
+    serde_json::from_slice(&read(path)?).map_err(|source| IoError::Scene {
+        path: path.into(),
+        source,
+    })
+}
+
+/// Renders `scene` with covec's renderer and writes it as a PNG (see [`output::png`]).
+pub fn write_png(
+    path: &Path,
+    scene: &Scene,
+    width: Option<u32>,
+    max_pixels: u64,
+) -> Result<(), IoError> {
+    let bytes = output::png(scene, width, max_pixels).map_err(|source| IoError::Raster {
+        path: path.into(),
+        source,
+    })?;
+    write(path, &bytes)
 }
 
 /// Reads and decodes an image under `limits`.

@@ -4,5 +4,6 @@ pub mod edit;
 pub mod eval;
 pub mod intrinsic;
 pub mod io;
+pub mod render;
 pub mod serve;
 pub mod vectorize;

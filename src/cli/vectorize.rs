@@ -10,20 +10,27 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::io::{self, IoError};
 use covec::imageio::{self, Limits};
-use covec::output::FileKind;
+use covec::output::{self, FileKind, RESULT_FILES};
 use covec::pipeline::{self, Inputs, Masks, Mode, Observer, Params, Progress};
 use covec::render::Image;
+use covec::svg::{self, SvgOptions};
 
 /// Vectorize an image into a layered SVG (albedo × shade + light).
 #[derive(ClapArgs, Debug)]
 pub struct Args {
     /// The image: PNG, JPEG or WebP; 8 or 16 bit; grey, RGB or RGBA (alpha is composited over white).
     pub input: PathBuf,
-    /// Where to write the layered SVG. Default: the input path with the extension `.svg`.
-    #[arg(short, long, value_name = "OUT.svg")]
+    /// Where to write the layered SVG, or with a `.png` extension a PNG drawn by covec's own
+    /// renderer (see --width). Default: the input path with the extension `.svg`.
+    #[arg(short, long, value_name = "OUT.svg|OUT.png")]
     pub output: Option<PathBuf>,
+    /// Width of a PNG output in pixels; the height keeps the aspect ratio. Default: the input's
+    /// width.
+    #[arg(long, value_name = "PX")]
+    pub width: Option<u32>,
     /// Where to write the JSON scene (layers → paths → points, colour, opacity), which the
-    /// service and editor load back losslessly. Default: the SVG path with the extension `.json`.
+    /// service and editor load back losslessly. Default: the output path with the extension
+    /// `.json`.
     #[arg(long, value_name = "SCENE.json")]
     pub json: Option<PathBuf>,
     /// An albedo map with the image's aspect ratio, e.g. from an intrinsic-decomposition
@@ -60,7 +67,11 @@ pub struct Args {
     /// Also write each layer as a standalone SVG here (albedo.svg, shade.svg, light.svg).
     #[arg(long, value_name = "DIR")]
     pub layers: Option<PathBuf>,
-    /// Refuse images (and masks) of more pixels than this.
+    /// Decimals of the SVGs' coordinates (0-6). Default: 1 up to a working long side of 1024 px,
+    /// 2 above. The JSON scene always keeps full precision.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=i64::from(svg::MAX_PRECISION)))]
+    pub precision: Option<u32>,
+    /// Refuse images (and masks, and PNG outputs) of more pixels than this.
     #[arg(long, default_value_t = Limits::default().max_pixels, value_name = "N")]
     pub max_pixels: u64,
     /// Refuse more masks (files in --masks, or distinct values in --labels) than this.
@@ -77,9 +88,19 @@ pub enum Error {
     NoMasks { path: PathBuf },
     #[error(transparent)]
     Pipeline(#[from] pipeline::Error),
+    #[error("--width sets the size of a PNG output; give -o a .png path")]
+    WidthWithoutPng,
 }
 
 pub fn run(args: &Args) -> Result<(), Error> {
+    let output_path = args
+        .output
+        .clone()
+        .unwrap_or_else(|| args.input.with_extension("svg"));
+    let png = io::is_png_output(&output_path);
+    if args.width.is_some() && !png {
+        return Err(Error::WidthWithoutPng);
+    }
     let limits = Limits {
         max_pixels: args.max_pixels,
         max_masks: args.max_masks,
@@ -127,30 +148,33 @@ pub fn run(args: &Args) -> Result<(), Error> {
     }
     let output = output?;
 
-    let svg_path = args
-        .output
-        .clone()
-        .unwrap_or_else(|| args.input.with_extension("svg"));
     let json_path = args
         .json
         .clone()
-        .unwrap_or_else(|| svg_path.with_extension("json"));
+        .unwrap_or_else(|| output_path.with_extension("json"));
     if let Some(dir) = &args.layers {
         io::create_dir(dir)?;
     }
-    io::write_artefacts(&output.artefacts(), |kind| match kind {
-        FileKind::LayeredSvg => Some(svg_path.clone()),
+    let svg_options = SvgOptions {
+        precision: args.precision,
+    };
+    let artefacts = output::artefacts_with(&output.scene, RESULT_FILES, &svg_options);
+    io::write_artefacts(&artefacts, |kind| match kind {
+        FileKind::LayeredSvg => (!png).then(|| output_path.clone()),
         FileKind::SceneJson => Some(json_path.clone()),
         FileKind::Layer(layer) => {
             (args.layers.as_ref()).map(|dir| dir.join(format!("{}.svg", layer.name())))
         }
         FileKind::Preview => None,
     })?;
+    if png {
+        io::write_png(&output_path, &output.scene, args.width, args.max_pixels)?;
+    }
     if std::io::stderr().is_terminal() {
         let scene = &output.scene;
         eprintln!(
             "{}: {} mode, {} paths ({} albedo, {} shade, {} light), {} segments",
-            svg_path.display(),
+            output_path.display(),
             output.mode.name(),
             scene.path_count(),
             scene.albedo.paths.len(),

@@ -13,12 +13,12 @@ use serde::{Deserialize, Serialize};
 use super::auth::Owner;
 use super::error::ApiError;
 use super::jobs::find;
-use super::results::{artefact, require_success, scene_file};
+use super::results::{artefact, require_success, scene_file, stored_scene};
 use super::{AppState, Endpoint, endpoint};
 use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
 use crate::imageio::{self, resize_rgb};
 use crate::output::{self, EDIT_FILES, FileKind};
-use crate::scene::{PathId, Point, Scene};
+use crate::scene::{PathId, Point};
 use crate::svg;
 
 pub fn endpoints() -> Vec<Endpoint> {
@@ -170,11 +170,7 @@ async fn create(
             .as_ref()
             .map(|base| format!("edits/{base}/"))
             .unwrap_or_default();
-        let scene_name = format!("{prefix}{}", FileKind::SceneJson.name());
-        let scene_bytes =
-            read(&scene_name)?.ok_or_else(|| ApiError::ResultNotFound(scene_name.clone()))?;
-        let scene: Scene = serde_json::from_slice(&scene_bytes)
-            .map_err(|e| ApiError::Internal(format!("stored scene: {e}")))?;
+        let scene = stored_scene(&queue, &job_id, &prefix)?;
         let (kind, edit) = match edit_request {
             EditRequest::Colors(changes) => {
                 (EditKind::Colors, edit::recolor_paths(&scene, &changes))

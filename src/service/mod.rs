@@ -101,6 +101,8 @@ pub struct AppState {
     max_wait: Duration,
     /// [`InputLimits::decode_slots`].
     decode_slots: Arc<tokio::sync::Semaphore>,
+    /// Bounds the PNG renders running at once ([`results::PNG_RENDERS`]).
+    png_renders: Arc<tokio::sync::Semaphore>,
 }
 
 /// Why the server could not start or stopped with an error.
@@ -160,6 +162,7 @@ impl AppState {
             decode_slots: Arc::new(tokio::sync::Semaphore::new(
                 config.limits.decode_slots.max(1),
             )),
+            png_renders: Arc::new(tokio::sync::Semaphore::new(results::PNG_RENDERS)),
         })
     }
 }

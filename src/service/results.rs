@@ -1,8 +1,10 @@
-//! A job's results: the layered SVG, the per-layer SVGs, the JSON scene and the stage previews.
+//! A job's results: the layered SVG, the per-layer SVGs, the JSON scene, a PNG of any width and
+//! the stage previews.
 //!
 //! Previews are served while the job runs; the other results once it has succeeded.
 
-use axum::extract::{Path, State};
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Path, Query, State};
 use axum::http::{Method, header};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
@@ -11,15 +13,17 @@ use super::auth::Owner;
 use super::error::ApiError;
 use super::jobs::find;
 use super::model::{JobRecord, Status};
+use super::queue::Queue;
 use super::{AppState, Endpoint, endpoint};
-use crate::output::FileKind;
-use crate::scene::LayerKind;
+use crate::output::{self, FileKind, RasterError};
+use crate::scene::{LayerKind, Scene};
 
 pub fn endpoints() -> Vec<Endpoint> {
     vec![
         endpoint(Method::GET, "/v1/jobs/{id}/svg", svg),
         endpoint(Method::GET, "/v1/jobs/{id}/layers/{file}", layer),
         endpoint(Method::GET, "/v1/jobs/{id}/scene.json", scene),
+        endpoint(Method::GET, "/v1/jobs/{id}/png", png),
         endpoint(Method::GET, "/v1/jobs/{id}/previews", previews),
         endpoint(Method::GET, "/v1/jobs/{id}/previews/{file}", preview),
     ]
@@ -111,6 +115,69 @@ async fn scene(
     let entry = find(&state, &owner, &id)?;
     require_success(&entry.snapshot())?;
     scene_file(&state, &id, "", FileKind::SceneJson).await
+}
+
+/// PNG renders at once: one at the pixel limit holds four f32 RGB images (12 bytes a pixel
+/// each, 768 MB at the default 16 Mpx), so concurrent requests wait rather than add up.
+pub(super) const PNG_RENDERS: usize = 1;
+
+/// The query of `GET /v1/jobs/{id}/png`; `width` is read as text so that a bad value is a 422
+/// problem naming it.
+#[derive(serde::Deserialize)]
+struct PngQuery {
+    width: Option<String>,
+}
+
+async fn png(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+    query: Result<Query<PngQuery>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
+    let width = query.width.as_deref().map(parse_width).transpose()?;
+    let entry = find(&state, &owner, &id)?;
+    require_success(&entry.snapshot())?;
+    let _slot = state
+        .png_renders
+        .acquire()
+        .await
+        .map_err(|error| ApiError::Internal(error.to_string()))?;
+    let queue = state.queue.clone();
+    let max_pixels = state.limits.max_pixels;
+    let bytes = tokio::task::spawn_blocking(move || {
+        let scene = stored_scene(&queue, &id, "")?;
+        output::png(&scene, width, max_pixels).map_err(|error| match error {
+            RasterError::ZeroWidth => ApiError::InvalidParams(error.to_string()),
+            RasterError::TooManyPixels { actual, limit, .. } => {
+                ApiError::TooManyPixels { limit, actual }
+            }
+            RasterError::EmptyCanvas => ApiError::Internal(format!("stored scene: {error}")),
+        })
+    })
+    .await
+    .map_err(|error| ApiError::Internal(error.to_string()))??;
+    Ok(([(header::CONTENT_TYPE, "image/png")], bytes).into_response())
+}
+
+/// A `width` query value: a whole number of pixels (0 is refused with the raster's own rule).
+fn parse_width(text: &str) -> Result<u32, ApiError> {
+    text.parse::<u32>().map_err(|_| {
+        ApiError::InvalidParams(format!(
+            "`width` must be a whole number of pixels, not `{text}`"
+        ))
+    })
+}
+
+/// The stored JSON scene of a job (under `prefix`, e.g. `edits/<id>/`). Blocking: call it off
+/// the async workers.
+pub(super) fn stored_scene(queue: &Queue, job: &str, prefix: &str) -> Result<Scene, ApiError> {
+    let name = format!("{prefix}{}", FileKind::SceneJson.name());
+    let bytes = queue
+        .store()
+        .read_artefact(job, &name)?
+        .ok_or(ApiError::ResultNotFound(name))?;
+    serde_json::from_slice(&bytes).map_err(|e| ApiError::Internal(format!("stored scene: {e}")))
 }
 
 async fn previews(
