@@ -75,10 +75,8 @@ pub enum RasterError {
     },
 }
 
-/// Width and height of a raster of `scene` `width` pixels wide (default: the original image's
-/// width): the height keeps the working canvas's aspect ratio (rounded, at least 1), and the two
-/// multiply to at most `max_pixels`.
-pub fn raster_size(
+/// The width and height [`png`] draws at (the height rounded, at least 1), or why it cannot.
+fn raster_size(
     scene: &Scene,
     width: Option<u32>,
     max_pixels: u64,
@@ -104,9 +102,10 @@ pub fn raster_size(
     Ok((width, height))
 }
 
-/// PNG of `scene` as shown, at [`raster_size`], drawn by covec's own renderer with the geometry
-/// scaled by width / working width: the picture that was optimised, at any size, without relying
-/// on a viewer's blend modes.
+/// PNG of `scene` as shown, `width` pixels wide (default: the original image's width; the height
+/// keeps the working canvas's aspect ratio; at most `max_pixels` in all), drawn by covec's own
+/// renderer with the geometry scaled by width / working width: the picture that was optimised,
+/// at any size, without relying on a viewer's blend modes.
 pub fn png(scene: &Scene, width: Option<u32>, max_pixels: u64) -> Result<Vec<u8>, RasterError> {
     let (w, h) = raster_size(scene, width, max_pixels)?;
     let scaled = scene.rescaled(w as f32 / scene.width as f32, w, h);

@@ -2,9 +2,9 @@
 //! and standalone per-layer SVGs.
 //!
 //! Rules, so that browsers show what covec's renderer optimised: blend modes in `style`
-//! (browsers and resvg ignore the attribute form), `isolation:isolate` on the root, colours and opacities clamped to [0, 1],
-//! explicit `fill-rule="nonzero"`, paths closed with `Z`. Each layer's group is an Inkscape
-//! layer with a `<title>`. Output depends only on the scene, so
+//! (browsers and resvg ignore the attribute form), `isolation:isolate` on the root, colours and
+//! opacities clamped to [0, 1], explicit `fill-rule="nonzero"`, paths closed with `Z`. Each
+//! layer's group is an Inkscape layer with a `<title>`. Output depends only on the scene, so
 //! equal scenes give byte-identical files.
 
 use std::fmt::Write;
@@ -138,14 +138,13 @@ pub fn path_data(path: &Path, decimals: u32) -> String {
             .enumerate()
             .map(|(i, &v)| v - current[i % 2])
             .collect();
-        let written = ['C', 'c'].map(|command| {
+        let [abs, rel] = ['C', 'c'].map(|command| {
             let mut candidate = data.continuation();
             candidate.command(command);
             let values = if command == 'C' { &absolute } else { &relative };
             candidate.numbers(values, decimals);
             candidate
         });
-        let [abs, rel] = written;
         data.append(if rel.text.len() <= abs.text.len() {
             rel
         } else {
@@ -194,10 +193,9 @@ impl PathData {
         self.last_number_has_dot = next.last_number_has_dot;
     }
 
-    /// Writes `command` unless it is the current one (numbers repeat it implicitly). `M` is
-    /// always written: numbers after it would mean `L`.
+    /// Writes `command` unless it is the current one (numbers repeat it implicitly).
     fn command(&mut self, command: char) {
-        if self.command != Some(command) || command == 'M' {
+        if self.command != Some(command) {
             self.text.push(command);
             self.command = Some(command);
             self.last_number_has_dot = None;
