@@ -15,7 +15,6 @@
 
 use crate::decompose::mask::Mask;
 use crate::render::Image;
-use crate::scene::{LayerKind, Scene};
 
 /// When and how much to run coarse.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -80,23 +79,6 @@ pub fn halve_mask(mask: &Mask) -> Mask {
             .count();
         inside >= 2
     })
-}
-
-/// A copy of `scene` on a `width × height` canvas with every point multiplied by `factor`
-/// (½ to go coarse, 2 to come back); colours and opacities are kept.
-pub fn rescaled(scene: &Scene, factor: f32, width: u32, height: u32) -> Scene {
-    let mut out = scene.clone();
-    out.width = width;
-    out.height = height;
-    for kind in LayerKind::ALL {
-        for path in &mut out.layer_mut(kind).paths {
-            for p in &mut path.points {
-                p.x *= factor;
-                p.y *= factor;
-            }
-        }
-    }
-    out
 }
 
 /// The plateau test of early stopping.
@@ -226,15 +208,15 @@ mod tests {
 
     #[test]
     fn rescaling_there_and_back_keeps_the_scene() {
-        let mut scene = Scene::new(64, 64, 64, 64);
+        let mut scene = crate::scene::Scene::new(64, 64, 64, 64);
         scene.shade.paths.push(crate::scene::Path::rect(
             3.0, 5.0, 17.0, 33.0, [0.5; 3], 0.7,
         ));
-        let coarse = rescaled(&scene, 0.5, 32, 32);
+        let coarse = scene.rescaled(0.5, 32, 32);
         assert_eq!(
             coarse.shade.paths[0].points[0],
             crate::scene::Point::new(1.5, 2.5)
         );
-        assert_eq!(rescaled(&coarse, 2.0, 64, 64), scene);
+        assert_eq!(coarse.rescaled(2.0, 64, 64), scene);
     }
 }

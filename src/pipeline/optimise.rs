@@ -5,7 +5,7 @@
 //! The structure stage, the first part of the reconstruction and the first refinement rounds run
 //! on a half-size copy of the scene (see [`super::coarse`]); previews are made at full size.
 
-use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask, rescaled};
+use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask};
 use super::init::InitState;
 use super::params::{Error, Params, ResolvedMode};
 use super::polish::{self, PolishSettings};
@@ -141,9 +141,9 @@ impl<'a> Optimisation<'a> {
             return Ok(None);
         };
         let (w, h) = (self.target.width as u32, self.target.height as u32);
-        let mut small = rescaled(&self.scene, 0.5, w.div_ceil(2), h.div_ceil(2));
+        let mut small = self.scene.rescaled(0.5, w.div_ceil(2), h.div_ceil(2));
         let out = f(&mut small, small_target)?;
-        self.scene = rescaled(&small, 2.0, w, h);
+        self.scene = small.rescaled(2.0, w, h);
         Ok(Some(out))
     }
 
