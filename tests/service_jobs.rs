@@ -564,7 +564,12 @@ async fn png_renders_at_any_width_as_the_cli_does_within_the_pixel_limit() {
     );
     let cancel = format!("/v1/jobs/{long}/cancel");
     let canceled = server.request(Method::POST, &cancel, &[], Vec::new()).await;
-    assert_eq!(canceled.status, StatusCode::ACCEPTED, "{}", canceled.text());
+    // 200 when it was still queued (canceled at once), 202 when it was running.
+    assert!(
+        [StatusCode::OK, StatusCode::ACCEPTED].contains(&canceled.status),
+        "{}",
+        canceled.text()
+    );
 
     let id = submit_quick(&server).await;
     let job = server.wait_for(&id, PATIENCE, terminal).await;
