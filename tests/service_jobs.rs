@@ -225,14 +225,7 @@ async fn cancel_stops_a_running_job_and_frees_the_worker() {
         (json!("queued"), json!(0))
     );
 
-    let cancel = server
-        .request(
-            Method::POST,
-            &format!("/v1/jobs/{long}/cancel"),
-            &[],
-            Vec::new(),
-        )
-        .await;
+    let cancel = server.cancel(&long).await;
     assert_eq!(cancel.status, StatusCode::ACCEPTED, "{}", cancel.text());
     assert_eq!(cancel.json()["cancel_requested"], true);
     let canceled = server
@@ -256,14 +249,7 @@ async fn cancel_stops_a_running_job_and_frees_the_worker() {
         (StatusCode::CONFLICT, json!("job-not-succeeded"))
     );
     // Canceling a finished job changes nothing.
-    let again = server
-        .request(
-            Method::POST,
-            &format!("/v1/jobs/{long}/cancel"),
-            &[],
-            Vec::new(),
-        )
-        .await;
+    let again = server.cancel(&long).await;
     assert_eq!(
         (again.status, again.json()["status"].clone()),
         (StatusCode::OK, json!("canceled"))
@@ -318,14 +304,7 @@ async fn a_full_queue_answers_503_with_retry_after() {
     let new_key = server.submit(&long, &[("idempotency-key", "wait-2")]).await;
     assert_eq!(problem(&new_key)["code"], "queue-full");
     // Canceling the queued job makes room again.
-    let cancel = server
-        .request(
-            Method::POST,
-            &format!("/v1/jobs/{waiting}/cancel"),
-            &[],
-            Vec::new(),
-        )
-        .await;
+    let cancel = server.cancel(&waiting).await;
     assert_eq!(
         (cancel.status, cancel.json()["status"].clone()),
         (StatusCode::OK, json!("canceled"))
@@ -340,14 +319,7 @@ async fn a_full_queue_answers_503_with_retry_after() {
         )
         .await;
     assert_eq!(accepted.status, StatusCode::CREATED, "{}", accepted.text());
-    server
-        .request(
-            Method::POST,
-            &format!("/v1/jobs/{running}/cancel"),
-            &[],
-            Vec::new(),
-        )
-        .await;
+    server.cancel(&running).await;
 }
 
 #[tokio::test]
@@ -405,14 +377,7 @@ async fn a_restarted_server_serves_finished_jobs_and_reruns_interrupted_ones() {
         ["queued", "running"].contains(&job["status"].as_str().unwrap()),
         "re-queued: {job}"
     );
-    server
-        .request(
-            Method::POST,
-            &format!("/v1/jobs/{interrupted}/cancel"),
-            &[],
-            Vec::new(),
-        )
-        .await;
+    server.cancel(&interrupted).await;
     server
         .wait_for(&interrupted, Duration::from_secs(10), terminal)
         .await;
@@ -482,14 +447,7 @@ async fn prefer_wait_answers_with_the_finished_job_or_202_in_time() {
         "{waited:?}"
     );
     let id = pending.json()["id"].as_str().unwrap().to_owned();
-    let cancel = server
-        .request(
-            Method::POST,
-            &format!("/v1/jobs/{id}/cancel"),
-            &[],
-            Vec::new(),
-        )
-        .await;
+    let cancel = server.cancel(&id).await;
     assert!(cancel.status.is_success(), "{}", cancel.text());
 
     // Without the preference, or with a malformed one: 201 at once, as before.
@@ -562,8 +520,7 @@ async fn png_renders_at_any_width_as_the_cli_does_within_the_pixel_limit() {
         code(&early),
         (StatusCode::CONFLICT, json!("job-not-succeeded"))
     );
-    let cancel = format!("/v1/jobs/{long}/cancel");
-    let canceled = server.request(Method::POST, &cancel, &[], Vec::new()).await;
+    let canceled = server.cancel(&long).await;
     // 200 when it was still queued (canceled at once), 202 when it was running.
     assert!(
         [StatusCode::OK, StatusCode::ACCEPTED].contains(&canceled.status),

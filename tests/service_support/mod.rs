@@ -133,6 +133,17 @@ impl Server {
         self.request(Method::GET, path, &[], Vec::new()).await
     }
 
+    /// `POST /v1/jobs/{id}/cancel`.
+    pub async fn cancel(&self, id: &str) -> Reply {
+        self.request(
+            Method::POST,
+            &format!("/v1/jobs/{id}/cancel"),
+            &[],
+            Vec::new(),
+        )
+        .await
+    }
+
     pub async fn post_json(&self, path: &str, json: &Value) -> Reply {
         self.request(
             Method::POST,
