@@ -9,6 +9,7 @@ use std::time::Instant;
 use clap::Args as ClapArgs;
 
 use super::io::{self, IoError};
+use covec::eval::vec::ObjectScores;
 use covec::eval::{self, Quality};
 use covec::imageio::{self, InputError, Limits, resize_rgb, working_size};
 use covec::pipeline::{self, Inputs, Masks, Mode, Params, Quiet, ResolvedMode};
@@ -60,6 +61,14 @@ pub struct Args {
     /// and exit (inputs are ignored).
     #[arg(long, value_name = "DIR")]
     pub write_scenes: Option<PathBuf>,
+    /// A directory with one sub-directory of binary semantic masks per image, named by the
+    /// image's file stem: adds VeC and the median IoU of albedo paths to masks (README, "Paths
+    /// that keep to objects").
+    #[arg(long, value_name = "DIR")]
+    pub semantic_masks: Option<PathBuf>,
+    /// Also give those masks to the pipeline, as `covec vectorize --masks` does.
+    #[arg(long, requires = "semantic_masks")]
+    pub use_masks: bool,
     /// Side of the generated scenes, in pixels.
     #[arg(long, default_value_t = 256, value_name = "PX")]
     pub scene_size: usize,
@@ -101,6 +110,8 @@ pub enum Error {
     Truth(String),
     #[error("no scene directories (with image.png and albedo.png) in the given inputs")]
     NoScenes,
+    #[error(transparent)]
+    Masks(#[from] Box<super::vectorize::Error>),
 }
 
 /// One run's measurements.
@@ -116,14 +127,15 @@ struct Row {
     quality: Quality,
     seconds: f64,
     peak_mb: Option<f64>,
+    objects: Option<ObjectScores>,
 }
 
-const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb";
+const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb,vec,median_iou";
 
 impl Row {
     fn csv(&self) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{}",
+            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{},{},{}",
             self.image,
             self.class,
             self.method,
@@ -144,6 +156,8 @@ impl Row {
                 .unwrap_or_default(),
             self.seconds,
             self.peak_mb.map(|m| format!("{m:.1}")).unwrap_or_default(),
+            optional(self.objects.and_then(|o| o.vec)),
+            optional(self.objects.and_then(|o| o.median_iou)),
         )
     }
 }
@@ -223,6 +237,10 @@ fn run_one(
     let (w, h) = working_size(image.width(), image.height(), args.max_size);
     let target = resize_rgb(&image, w, h);
     let cancel = AtomicBool::new(false);
+    let semantic = match &args.semantic_masks {
+        Some(dir) => Some(semantic_masks(&dir.join(stem(path)))?),
+        None => None,
+    };
     let (scene, mode): (Scene, ResolvedMode) = match method {
         Method::Random => {
             let mut scene =
@@ -239,7 +257,10 @@ fn run_one(
             let inputs = Inputs {
                 image,
                 albedo: None,
-                masks: Masks::None,
+                masks: match &semantic {
+                    Some(masks) if args.use_masks => Masks::Binary(masks.clone()),
+                    _ => Masks::None,
+                },
             };
             let output =
                 pipeline::run(&inputs, &params, &Quiet, &cancel).map_err(pipeline_error)?;
@@ -250,11 +271,19 @@ fn run_one(
     let seconds = started.elapsed().as_secs_f64();
     let peak_mb = eval::peak_memory_bytes().map(|b| b as f64 / (1024.0 * 1024.0));
     let quality = eval::quality(&composite(&scene), &target);
+    let objects = semantic.map(|masks| {
+        let (w, h) = (scene.width, scene.height);
+        let at_working_size: Vec<Vec<bool>> = masks
+            .iter()
+            .map(|m| {
+                let m = image::imageops::resize(m, w, h, image::imageops::FilterType::Nearest);
+                m.as_raw().iter().map(|&v| v > 0).collect()
+            })
+            .collect();
+        eval::vec::object_scores(&scene, &at_working_size)
+    });
     Ok(Row {
-        image: path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default(),
+        image: stem(path),
         class: path
             .parent()
             .and_then(Path::file_name)
@@ -273,7 +302,24 @@ fn run_one(
         quality,
         seconds,
         peak_mb,
+        objects,
     })
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// The binary masks in `dir` (as `covec vectorize --masks` reads them).
+fn semantic_masks(dir: &Path) -> Result<Vec<image::GrayImage>, Error> {
+    super::vectorize::read_mask_dir(dir, &Limits::default()).map_err(|e| Error::Masks(Box::new(e)))
+}
+
+/// A value with 4 decimals, or blank.
+fn optional(value: Option<f32>) -> String {
+    value.map(|v| format!("{v:.4}")).unwrap_or_default()
 }
 
 /// The run parameters for `budget` paths: the command's size, seed and iteration scale.
@@ -293,6 +339,15 @@ pub fn params_for(args: &Args, budget: u32) -> Params {
         scale(it.polish),
     );
     params
+}
+
+/// Mean of an object score over the rows that have it, blank if none has.
+fn mean_of(rows: &[&Row], score: impl Fn(&ObjectScores) -> Option<f32>) -> String {
+    let values: Vec<f32> = rows
+        .iter()
+        .filter_map(|r| r.objects.as_ref().and_then(&score))
+        .collect();
+    optional((!values.is_empty()).then(|| values.iter().sum::<f32>() / values.len() as f32))
 }
 
 /// Mean MS-SSIM of the rows that have one (images of at least 11 px), blank if none has.
@@ -344,7 +399,7 @@ fn summary(rows: &[Row]) -> String {
             .then(a.1.cmp(b.1))
     });
     let mut out = String::from(
-        "\n| class | method | paths | n | MSE | PSNR | SSIM | GMSD | MS-SSIM | segments | SVG KB | seconds (median) | peak MB (max) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "\n| class | method | paths | n | MSE | PSNR | SSIM | GMSD | MS-SSIM | segments | SVG KB | seconds (median) | peak MB (max) | VeC | IoU (median) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for (class, method, budget) in keys {
         let group: Vec<&Row> = rows
@@ -361,7 +416,7 @@ fn summary(rows: &[Row]) -> String {
         let peak = group.iter().filter_map(|r| r.peak_mb).fold(0.0, f64::max);
         let _ = writeln!(
             out,
-            "| {class} | {method} | {budget} | {} | {:.5} | {:.2} | {:.4} | {:.4} | {} | {:.0} | {:.1} | {:.1} | {:.0} |",
+            "| {class} | {method} | {budget} | {} | {:.5} | {:.2} | {:.4} | {:.4} | {} | {:.0} | {:.1} | {:.1} | {:.0} | {} | {} |",
             group.len(),
             mean(&|r| f64::from(r.quality.mse)),
             mean(&|r| f64::from(r.quality.psnr)),
@@ -372,6 +427,8 @@ fn summary(rows: &[Row]) -> String {
             mean(&|r| r.svg_bytes as f64 / 1024.0),
             median,
             peak,
+            mean_of(&group, |o| o.vec),
+            mean_of(&group, |o| o.median_iou),
         );
     }
     out

@@ -187,7 +187,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
 }
 
 /// The image files of a directory, in file-name order, decoded as binary masks.
-fn read_mask_dir(dir: &Path, limits: &Limits) -> Result<Vec<image::GrayImage>, Error> {
+pub(super) fn read_mask_dir(dir: &Path, limits: &Limits) -> Result<Vec<image::GrayImage>, Error> {
     let paths: Vec<PathBuf> = io::list_dir(dir)?
         .into_iter()
         .filter(|path| io::is_image_file(path))

@@ -4,6 +4,7 @@
 //! decomposition shows side by side.
 
 pub mod intrinsic;
+pub mod vec;
 
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
