@@ -145,12 +145,15 @@ mod tests {
     #[test]
     fn tiny_and_empty_inputs_are_handled() {
         let left = mask(0, 5, 0, 10);
-        assert_eq!(vec_score(&[], &[left.clone()]), None);
-        assert_eq!(vec_score(&[vec![]], &[left.clone()]), None);
+        assert_eq!(vec_score(&[], std::slice::from_ref(&left)), None);
+        assert_eq!(vec_score(&[vec![]], std::slice::from_ref(&left)), None);
         // A one-pixel path inside counts.
-        assert_eq!(vec_score(&[vec![(0, 0.3)]], &[left.clone()]), Some(1.0));
+        assert_eq!(
+            vec_score(&[vec![(0, 0.3)]], std::slice::from_ref(&left)),
+            Some(1.0)
+        );
         assert_eq!(iou(&rect(0, 5, 0, 10), &left), 1.0);
         assert_eq!(iou(&rect(0, 10, 0, 10), &left), 0.5);
-        assert_eq!(iou(&[], &vec![false; 100]), 0.0);
+        assert_eq!(iou(&[], &[false; 100]), 0.0);
     }
 }
