@@ -10,6 +10,7 @@ use std::time::Instant;
 use super::eval::{Args, Error, params_for};
 use super::io;
 use covec::eval::intrinsic::{self, AlbedoEstimate, LayerScores, TRUTH_FILES, Truth};
+use covec::eval::vec::{ObjectScores, object_scores};
 use covec::pipeline::{self, Inputs, Masks, Mode, Quiet};
 use covec::render::composite::composite;
 use covec::synth::{self, scenes};
@@ -23,9 +24,11 @@ enum Run {
     PhotoRetinex,
     /// The albedo-only variant: the no-decomposition baseline.
     Simple,
+    /// Photo mode given the scene's true object labels as masks (issue 21), when known.
+    PhotoLabels,
 }
 
-const RUNS: [Run; 3] = [Run::Photo, Run::PhotoRetinex, Run::Simple];
+const RUNS: [Run; 4] = [Run::Photo, Run::PhotoRetinex, Run::Simple, Run::PhotoLabels];
 
 impl Run {
     fn name(self) -> &'static str {
@@ -33,6 +36,7 @@ impl Run {
             Run::Photo => "photo",
             Run::PhotoRetinex => "photo-retinex",
             Run::Simple => "simple",
+            Run::PhotoLabels => "photo-labels",
         }
     }
 }
@@ -62,11 +66,13 @@ struct Row {
     /// The image's own error against the true albedo.
     image_error: f32,
     scores: LayerScores,
+    /// How paths keep to the true objects, when they are known.
+    objects: Option<ObjectScores>,
     mse: f32,
     seconds: f64,
 }
 
-const CSV_HEADER: &str = "scene,method,budget,image_albedo_simse,albedo_simse,albedo_ratio,shade_simse,light_simse,highlight_coverage,shadow_in_albedo,edit_mse,mse,seconds";
+const CSV_HEADER: &str = "scene,method,budget,image_albedo_simse,albedo_simse,albedo_ratio,shade_simse,light_simse,highlight_coverage,shadow_in_albedo,edit_mse,mse,seconds,vec,median_iou";
 
 fn optional(v: Option<f32>) -> String {
     v.map(|v| format!("{v:.4}")).unwrap_or_default()
@@ -76,7 +82,7 @@ impl Row {
     fn csv(&self) -> String {
         let s = &self.scores;
         format!(
-            "{},{},{},{:.6},{:.6},{:.3},{:.6},{:.6},{},{},{},{:.6},{:.2}",
+            "{},{},{},{:.6},{:.6},{:.3},{:.6},{:.6},{},{},{},{:.6},{:.2},{},{}",
             self.scene,
             self.run.name(),
             self.budget,
@@ -90,6 +96,8 @@ impl Row {
             s.edit.map(|v| format!("{v:.6}")).unwrap_or_default(),
             self.mse,
             self.seconds,
+            optional(self.objects.and_then(|o| o.vec)),
+            optional(self.objects.and_then(|o| o.median_iou)),
         )
     }
 }
@@ -137,7 +145,12 @@ pub fn run(args: &Args) -> Result<(), Error> {
             intrinsic::map_error(&AlbedoEstimate::Intrinsic.map(&truth.image), &truth),
         );
         for &budget in &args.paths {
+            let labels = truth.label_map();
+            let object_masks = truth.object_masks();
             for run in RUNS {
+                if run == Run::PhotoLabels && labels.is_none() {
+                    continue;
+                }
                 let mut params = params_for(args, budget);
                 params.max_size = params
                     .max_size
@@ -151,7 +164,10 @@ pub fn run(args: &Args) -> Result<(), Error> {
                 let inputs = Inputs {
                     image: rgb(&truth.image),
                     albedo: (run == Run::PhotoRetinex).then(|| rgb(&retinex)),
-                    masks: Masks::None,
+                    masks: match (&labels, run) {
+                        (Some(labels), Run::PhotoLabels) => Masks::Labels(labels.clone()),
+                        _ => Masks::None,
+                    },
                 };
                 let started = Instant::now();
                 let output = pipeline::run(&inputs, &params, &Quiet, &AtomicBool::new(false))
@@ -162,12 +178,15 @@ pub fn run(args: &Args) -> Result<(), Error> {
                 let seconds = started.elapsed().as_secs_f64();
                 let scores = intrinsic::score(&output.scene, &truth);
                 let mse = covec::eval::quality(&composite(&output.scene), &truth.image).mse;
+                let objects =
+                    (!object_masks.is_empty()).then(|| object_scores(&output.scene, &object_masks));
                 let row = Row {
                     scene: name.clone(),
                     run,
                     budget,
                     image_error,
                     scores,
+                    objects,
                     mse,
                     seconds,
                 };
@@ -220,6 +239,35 @@ fn summary(rows: &[Row]) -> String {
             edit(photo),
             edit(retinex),
             edit(simple),
+        );
+    }
+    out.push_str(
+        "\n| scene | paths | VeC (bare / labels) | albedo path IoU, median (bare / labels) | MSE (bare / labels) |\n|---|---|---|---|---|\n",
+    );
+    for photo in rows.iter().filter(|r| r.run == Run::Photo) {
+        let Some(labelled) = rows.iter().find(|r| {
+            r.run == Run::PhotoLabels && r.scene == photo.scene && r.budget == photo.budget
+        }) else {
+            continue;
+        };
+        let score = |r: &Row, f: fn(&ObjectScores) -> Option<f32>| {
+            r.objects
+                .as_ref()
+                .and_then(f)
+                .map(|v| format!("{v:.2}"))
+                .unwrap_or_default()
+        };
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} / {} | {} / {} | {:.5} / {:.5} |",
+            photo.scene,
+            photo.budget,
+            score(photo, |o| o.vec),
+            score(labelled, |o| o.vec),
+            score(photo, |o| o.median_iou),
+            score(labelled, |o| o.median_iou),
+            photo.mse,
+            labelled.mse,
         );
     }
     out

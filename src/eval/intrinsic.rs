@@ -33,17 +33,24 @@ pub struct Truth {
     pub cast_shadow: Option<Vec<bool>>,
     /// The true result of recolouring one object, if known.
     pub edited: Option<Image>,
+    /// The object seen at each pixel (semantic labels), if known.
+    pub objects: Option<Vec<u8>>,
 }
 
 /// The files of a truth directory: the first four are required.
-pub const TRUTH_FILES: [&str; 6] = [
+pub const TRUTH_FILES: [&str; 7] = [
     "image.png",
     "albedo.png",
     "shade.png",
     "light.png",
     "cast-shadow.png",
     "edited.png",
+    "labels.png",
 ];
+
+/// Grey step between object labels in `labels.png` (8-bit values).
+const LABEL_GREY_STEP: u8 = 40;
+const LABEL_STEP: f32 = LABEL_GREY_STEP as f32 / 255.0;
 
 /// A pixel counts as a highlight where the true light exceeds this in some channel (issue 11).
 pub const HIGHLIGHT_LEVEL: f32 = 0.2;
@@ -62,6 +69,7 @@ impl From<LitScene> for Truth {
             light: s.light,
             cast_shadow: Some(s.cast_shadow),
             edited: Some(s.edited),
+            objects: Some(s.objects),
         }
     }
 }
@@ -87,7 +95,41 @@ impl Truth {
         if let Some(edited) = &self.edited {
             out.push((TRUTH_FILES[5], encode_png(edited)));
         }
+        if let Some(objects) = &self.objects {
+            let grey = objects.iter().flat_map(|&k| [f32::from(k) * LABEL_STEP; 3]);
+            let image = Image {
+                width: self.image.width,
+                height: self.image.height,
+                data: grey.collect(),
+            };
+            out.push((TRUTH_FILES[6], encode_png(&image)));
+        }
         out
+    }
+
+    /// One binary mask per object present, in label order.
+    pub fn object_masks(&self) -> Vec<Vec<bool>> {
+        let Some(objects) = &self.objects else {
+            return Vec::new();
+        };
+        let mut labels: Vec<u8> = objects.clone();
+        labels.sort_unstable();
+        labels.dedup();
+        labels
+            .iter()
+            .map(|&k| objects.iter().map(|&o| o == k).collect())
+            .collect()
+    }
+
+    /// The labels as a label-map image, as a client would send it.
+    pub fn label_map(&self) -> Option<image::DynamicImage> {
+        let objects = self.objects.as_ref()?;
+        let (w, h) = (self.image.width as u32, self.image.height as u32);
+        let grey: Vec<u8> = objects
+            .iter()
+            .map(|&k| k.saturating_mul(LABEL_GREY_STEP))
+            .collect();
+        image::GrayImage::from_raw(w, h, grey).map(image::DynamicImage::ImageLuma8)
     }
 
     /// Reads a truth directory. Missing optional files give `None`; differing sizes are an error.
@@ -111,15 +153,28 @@ impl Truth {
             cast_shadow: load(TRUTH_FILES[4])?
                 .map(|m| m.data.chunks_exact(3).map(|p| p[0] > 0.5).collect()),
             edited: load(TRUTH_FILES[5])?,
+            objects: load(TRUTH_FILES[6])?.map(|m| {
+                m.data
+                    .chunks_exact(3)
+                    .map(|p| (p[0] / LABEL_STEP).round() as u8)
+                    .collect()
+            }),
         };
         let size = (truth.image.width, truth.image.height);
-        let others = [&truth.albedo, &truth.shade, &truth.light]
+        let pixels = size.0 * size.1;
+        let layers_fit = [&truth.albedo, &truth.shade, &truth.light]
             .into_iter()
-            .chain(&truth.edited);
-        for other in others {
-            if (other.width, other.height) != size {
-                return Err(format!("{}: layers differ in size", dir.display()));
-            }
+            .chain(&truth.edited)
+            .all(|other| (other.width, other.height) == size);
+        let masks_fit = [
+            truth.cast_shadow.as_ref().map(Vec::len),
+            truth.objects.as_ref().map(Vec::len),
+        ]
+        .into_iter()
+        .flatten()
+        .all(|len| len == pixels);
+        if !(layers_fit && masks_fit) {
+            return Err(format!("{}: layers differ in size", dir.display()));
         }
         Ok(truth)
     }
@@ -278,6 +333,8 @@ mod tests {
         let back = Truth::read(&dir).unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
         assert_eq!(back.cast_shadow, truth.cast_shadow);
+        assert_eq!(back.objects, truth.objects);
+        assert_eq!(back.object_masks().len(), 3); // floor, wall, sphere
         assert!(scale_invariant_mse(&back.albedo, &truth.albedo) < 1e-4);
         assert!(map_error(&truth.albedo, &truth) < 1e-9);
         assert!(image_error(&truth) > 1e-3);

@@ -22,6 +22,8 @@ pub struct LitScene {
     pub light: Image,
     /// Pixels where a surface facing the main light is shadowed from it by another object.
     pub cast_shadow: Vec<bool>,
+    /// The object seen at each pixel (most of its samples): 0 floor, 1 wall, 2 + k sphere k.
+    pub objects: Vec<u8>,
     /// The image with the albedo of the first sphere replaced by [`EDIT_COLOUR`] (or
     /// [`EDIT_COLOUR_ALT`] when the sphere is already bluish), lighting unchanged: the true
     /// result of a recolour.
@@ -339,6 +341,7 @@ struct Sample {
     light: Vec3,
     cast_shadow: bool,
     edited_sphere: bool,
+    object: u8,
 }
 
 fn trace(setup: &Setup, direction: Vec3) -> Sample {
@@ -347,11 +350,13 @@ fn trace(setup: &Setup, direction: Vec3) -> Sample {
     let wall_t = plane((direction[2] > 0.0).then(|| (WALL_Z - CAMERA[2]) / direction[2]));
     let sphere_hit = hit_sphere(&setup.spheres, CAMERA, direction);
     let mut best = (f32::INFINITY, None::<usize>, [0.0f32; 3], setup.wall);
+    let mut object = 1;
     if let Some(t) = wall_t {
         best = (t, None, [0.0, 0.0, -1.0], setup.wall);
     }
     if let Some(t) = floor_t.filter(|&t| t < best.0) {
         best = (t, None, [0.0, 1.0, 0.0], setup.floor);
+        object = 0;
     }
     let mut local = [0.0; 3];
     if let Some((t, k)) = sphere_hit.filter(|&(t, _)| t < best.0) {
@@ -359,6 +364,7 @@ fn trace(setup: &Setup, direction: Vec3) -> Sample {
         let point = add(CAMERA, scale(direction, t));
         local = scale(sub(point, s.centre), 1.0 / s.radius);
         best = (t, Some(k), local, s.surface);
+        object = 2 + k as u8;
     }
     let (t, sphere, normal, surface) = best;
     let point = add(CAMERA, scale(direction, t));
@@ -391,6 +397,7 @@ fn trace(setup: &Setup, direction: Vec3) -> Sample {
         light,
         cast_shadow,
         edited_sphere: sphere == Some(0),
+        object,
     }
 }
 
@@ -421,12 +428,14 @@ pub fn scene(index: usize, size: usize) -> LitScene {
         shade: blank.clone(),
         light: blank.clone(),
         cast_shadow: vec![false; size * size],
+        objects: vec![0; size * size],
         edited: blank,
     };
     const SUB: [f32; 2] = [0.25, 0.75];
     for y in 0..size {
         for x in 0..size {
             let mut shadowed = 0;
+            let mut seen = [0u8; 8];
             let i = 3 * (y * size + x);
             for sy in SUB {
                 for sx in SUB {
@@ -435,6 +444,7 @@ pub fn scene(index: usize, size: usize) -> LitScene {
                     let ray = normalised(add(forward, add(scale(right, u), scale(up, v))));
                     let s = trace(&setup, ray);
                     shadowed += usize::from(s.cast_shadow);
+                    seen[usize::from(s.object)] += 1;
                     let edited_albedo = if s.edited_sphere {
                         edit_colour
                     } else {
@@ -451,6 +461,11 @@ pub fn scene(index: usize, size: usize) -> LitScene {
                 }
             }
             out.cast_shadow[y * size + x] = shadowed >= 3;
+            // The first of the most seen objects.
+            out.objects[y * size + x] = (0..seen.len())
+                .rev()
+                .max_by_key(|&k| seen[k])
+                .map_or(0, |k| k as u8);
         }
     }
     out
