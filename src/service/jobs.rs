@@ -285,9 +285,12 @@ async fn list(
             "`cursor` must be a `next_cursor` from an earlier page, not `{cursor}`"
         )));
     }
-    let (page, more) = state
-        .queue
-        .list(&owner.0, status, query.cursor.as_deref(), limit);
+    let queue = state.queue.clone();
+    let (page, more) = tokio::task::spawn_blocking(move || {
+        queue.list(&owner.0, status, query.cursor.as_deref(), limit)
+    })
+    .await
+    .map_err(|error| ApiError::Internal(error.to_string()))??;
     let next_cursor = if more {
         page.last().map(|(record, _)| record.id.clone())
     } else {

@@ -312,18 +312,26 @@ pub async fn serve(
     Ok(())
 }
 
-/// Removes expired results periodically.
+/// Removes expired results, and job directories no job owns, periodically.
 async fn sweep_expired(queue: Arc<Queue>, retention: Duration) {
     let period = (retention / 10).clamp(Duration::from_secs(1), Duration::from_secs(60));
     let mut ticks = tokio::time::interval(period);
     loop {
         ticks.tick().await;
         let queue = queue.clone();
-        let removed = tokio::task::spawn_blocking(move || queue.expire(model::now_ms()))
-            .await
-            .unwrap_or(0);
+        let (removed, orphans) = tokio::task::spawn_blocking(move || {
+            (
+                queue.expire(model::now_ms()),
+                queue.sweep_orphans(queue::ORPHAN_AGE),
+            )
+        })
+        .await
+        .unwrap_or((0, 0));
         if removed > 0 {
             tracing::info!(removed, "expired job results removed");
+        }
+        if orphans > 0 {
+            tracing::info!(orphans, "orphaned job directories removed");
         }
     }
 }
