@@ -268,3 +268,98 @@ async fn decoded_inputs_are_capped_per_job() {
     assert_eq!(problem["limit"], 20480);
     assert_eq!(problem["actual"], 24576);
 }
+
+/// `POST /v1/jobs{query}` with `image` and quick parameters.
+async fn submit_to(server: &Server, image: &[u8], query: &str) -> service_support::Reply {
+    let params = service_support::QUICK_PARAMS.as_bytes();
+    let (content_type, body) = service_support::multipart(&[("image", image), ("params", params)]);
+    server
+        .request(
+            Method::POST,
+            &format!("/v1/jobs{query}"),
+            &[("content-type", &content_type)],
+            body,
+        )
+        .await
+}
+
+/// A JPEG cut in half is refused (422 `truncated-image`) rather than vectorised on grey fill,
+/// unless the client opts in with `accept_truncated=true`; a label map with too many values
+/// says so (not "257 masks were sent").
+#[tokio::test]
+async fn truncated_jpegs_and_crowded_label_maps_are_refused_clearly() {
+    let dir = DataDir::new("truncated");
+    let server = Server::start(&dir.0, &["--max-masks", "8"]);
+    // Large enough that half the file is well into the scan data.
+    let photo = image::load_from_memory(&service_support::test_png(192)).unwrap();
+    let mut jpeg = Vec::new();
+    photo
+        .write_to(
+            &mut std::io::Cursor::new(&mut jpeg),
+            image::ImageFormat::Jpeg,
+        )
+        .unwrap();
+    let half = &jpeg[..jpeg.len() / 2];
+    let params = service_support::QUICK_PARAMS.as_bytes();
+    let refused = submit_to(&server, half, "").await;
+    assert_eq!(
+        refused.status,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "{}",
+        refused.text()
+    );
+    assert_eq!(
+        service_support::problem(&refused)["code"],
+        "truncated-image"
+    );
+    let accepted = submit_to(&server, half, "?accept_truncated=true").await;
+    assert_eq!(accepted.status, StatusCode::CREATED, "{}", accepted.text());
+    let id = accepted.json()["id"].as_str().unwrap().to_owned();
+    let job = server
+        .wait_for(&id, Duration::from_secs(60), |job| {
+            job["status"] != "queued" && job["status"] != "running"
+        })
+        .await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let whole = submit_to(&server, &jpeg, "").await;
+    assert_eq!(whole.status, StatusCode::CREATED, "{}", whole.text());
+    let bad_query = submit_to(&server, &jpeg, "?accept_truncated=maybe").await;
+    assert_eq!(
+        bad_query.status,
+        StatusCode::BAD_REQUEST,
+        "{}",
+        bad_query.text()
+    );
+
+    // 10 grey levels with a limit of 8 masks.
+    let labels = image::GrayImage::from_fn(48, 48, |x, _| image::Luma([(x / 5) as u8 * 20]));
+    let labels = service_support::png(&image::DynamicImage::ImageLuma8(labels));
+    let image = service_support::test_png(48);
+    let (content_type, body) =
+        service_support::multipart(&[("image", &image), ("labels", &labels), ("params", params)]);
+    let refused = server
+        .request(
+            Method::POST,
+            "/v1/jobs",
+            &[("content-type", &content_type)],
+            body,
+        )
+        .await;
+    assert_eq!(
+        refused.status,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "{}",
+        refused.text()
+    );
+    let problem = service_support::problem(&refused);
+    assert_eq!(
+        (problem["code"].as_str(), problem["limit"].as_u64()),
+        (Some("too-many-masks"), Some(8))
+    );
+    let detail = problem["detail"].as_str().unwrap();
+    assert!(
+        detail.contains("label map holds more than 8 distinct values"),
+        "{detail}"
+    );
+    assert!(!detail.contains("masks were sent"), "{detail}");
+}

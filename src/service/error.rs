@@ -55,6 +55,16 @@ pub enum ApiError {
     TooManyPixels { limit: u64, actual: u64 },
     #[error("{actual} masks were sent, more than the limit of {limit}")]
     TooManyMasks { limit: u64, actual: u64 },
+    #[error(
+        "the label map holds more than {limit} distinct values, each of which would be a mask; the limit is {limit}"
+    )]
+    TooManyLabels { limit: u64 },
+    #[error(
+        "the {0} is a JPEG cut short (it ends before its end-of-image marker); send `accept_truncated=true` to use it anyway, its missing part grey"
+    )]
+    TruncatedImage(&'static str),
+    #[error("{actual} changes were sent, more than the limit of {limit} per edit")]
+    TooManyChanges { limit: u64, actual: u64 },
     #[error("the decoded inputs reach {actual} bytes, more than the limit of {limit}")]
     InputsTooLarge { limit: u64, actual: u64 },
     #[error("malformed request: {0}")]
@@ -97,10 +107,11 @@ impl ApiError {
             BodyTooLarge { .. }
             | TooManyPixels { .. }
             | TooManyMasks { .. }
+            | TooManyLabels { .. }
+            | TooManyChanges { .. }
             | InputsTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
-            UndecodableImage(..) | InvalidParams(_) | InvalidInput(_) | IdempotencyMismatch => {
-                StatusCode::UNPROCESSABLE_ENTITY
-            }
+            TruncatedImage(_) | UndecodableImage(..) | InvalidParams(_) | InvalidInput(_)
+            | IdempotencyMismatch => StatusCode::UNPROCESSABLE_ENTITY,
             QueueFull(..) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             NotReady(..) => StatusCode::CONFLICT,
             DataRemoved(_) => StatusCode::GONE,
@@ -122,8 +133,10 @@ impl ApiError {
             UnsupportedMediaType(_) => "unsupported-media-type",
             BodyTooLarge { .. } => "body-too-large",
             TooManyPixels { .. } => "too-many-pixels",
-            TooManyMasks { .. } => "too-many-masks",
+            TooManyMasks { .. } | TooManyLabels { .. } => "too-many-masks",
+            TruncatedImage(_) => "truncated-image",
             InputsTooLarge { .. } => "inputs-too-large",
+            TooManyChanges { .. } => "too-many-changes",
             BadRequest(_) => "bad-request",
             BadQuery(_) => "bad-query",
             UndecodableImage(..) => "undecodable-image",
@@ -153,8 +166,11 @@ impl ApiError {
         let (limit, actual) = match self {
             ApiError::TooManyPixels { limit, actual }
             | ApiError::TooManyMasks { limit, actual }
+            | ApiError::TooManyChanges { limit, actual }
             | ApiError::InputsTooLarge { limit, actual } => (Some(*limit), Some(*actual)),
-            ApiError::BodyTooLarge { limit } => (Some(*limit), None),
+            ApiError::BodyTooLarge { limit } | ApiError::TooManyLabels { limit } => {
+                (Some(*limit), None)
+            }
             _ => (None, None),
         };
         Problem {

@@ -55,6 +55,15 @@ fn view(state: &AppState, entry: &JobEntry) -> JobView {
     JobView::new(&record, position)
 }
 
+/// The query of `POST /v1/jobs`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CreateQuery {
+    /// Use JPEGs cut short (the missing part decodes as grey) instead of refusing them.
+    #[serde(default)]
+    accept_truncated: bool,
+}
+
 const IDEMPOTENCY_KEY: &str = "idempotency-key";
 const PREFER: &str = "prefer";
 
@@ -75,6 +84,8 @@ async fn create(
         },
         None => None,
     };
+    let Query(options) = Query::<CreateQuery>::try_from_uri(request.uri())
+        .map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
     // Without a key, a full queue refuses before the body is read. With one, a retry gets its
     // replay even when the queue is full: capacity is checked once the key is looked up.
     if key.is_none() {
@@ -103,6 +114,7 @@ async fn create(
             &submission.masks,
             submission.labels.as_deref(),
             &limits,
+            options.accept_truncated,
         )
         .map(|_| submission)
     })
@@ -116,6 +128,7 @@ async fn create(
         albedo: submission.albedo.is_some(),
         masks: submission.masks.len(),
         labels: submission.labels.is_some(),
+        accept_truncated: options.accept_truncated,
     };
     inputs.extend(
         submission

@@ -79,6 +79,9 @@ pub struct InputManifest {
     /// Number of binary masks (`input/mask-<n>`).
     pub masks: usize,
     pub labels: bool,
+    /// The client accepted JPEGs cut short (`accept_truncated`).
+    #[serde(default)]
+    pub accept_truncated: bool,
 }
 
 /// Job progress as served (`progress` in the job resource and in events).

@@ -661,6 +661,7 @@ impl Queue {
                 &masks,
                 labels.as_deref(),
                 &self.limits,
+                record.inputs.accept_truncated,
             )
         })();
         let inputs = match inputs {

@@ -147,7 +147,9 @@ impl Store {
     /// At start: drops tombstones, moves unreadable rows to the `quarantine` table (logged;
     /// the server starts without them) and returns every other record, oldest first.
     pub fn recover(&self) -> Result<Recovered, StoreError> {
-        let db = self.db();
+        let connection = self.db();
+        // One transaction: a backfill of many rows is one commit, not one each.
+        let db = connection.unchecked_transaction()?;
         db.execute("DELETE FROM jobs WHERE deleted = 1", [])?;
         let rows: Vec<(String, String, Option<String>)> = db
             .prepare("SELECT id, record, status FROM jobs ORDER BY id")?
@@ -181,6 +183,7 @@ impl Store {
                 }
             }
         }
+        db.commit()?;
         Ok(recovered)
     }
 
@@ -279,6 +282,12 @@ impl Store {
             Err(error) if error.kind() == std::io::ErrorKind::NotFound => Ok(None),
             Err(error) => Err(io_error(&path)(error)),
         }
+    }
+
+    /// Whether `jobs/<id>/<name>` exists, without reading it.
+    pub fn has_artefact(&self, id: &str, name: &str) -> Result<bool, StoreError> {
+        let path = self.job_dir(id).join(name);
+        path.try_exists().map_err(io_error(&path))
     }
 
     /// Removes every file of a job; missing files are not an error.

@@ -50,11 +50,12 @@ impl InputLimits {
         }
     }
 
-    /// The decoder limits these limits imply.
-    pub fn decoding(&self) -> imageio::Limits {
+    /// The decoder limits these limits imply; `accept_truncated` is the client's choice.
+    pub fn decoding(&self, accept_truncated: bool) -> imageio::Limits {
         imageio::Limits {
             max_pixels: self.max_pixels,
             max_masks: self.max_masks,
+            accept_truncated,
         }
     }
 }
@@ -197,21 +198,24 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
     })
 }
 
-async fn read_json(request: Request, limits: &InputLimits) -> Result<Submission, ApiError> {
-    let body = axum::body::to_bytes(request.into_body(), limits.max_body_bytes as usize)
+/// A whole request body of at most `limit` bytes: 413 beyond it, 400 when it cannot be read.
+pub(super) async fn read_body(request: Request, limit: u64) -> Result<Bytes, ApiError> {
+    axum::body::to_bytes(request.into_body(), limit as usize)
         .await
         .map_err(|error| {
             let over_limit = std::error::Error::source(&error)
                 .is_some_and(|source| source.is::<http_body_util::LengthLimitError>())
                 || error.into_inner().is::<http_body_util::LengthLimitError>();
             if over_limit {
-                ApiError::BodyTooLarge {
-                    limit: limits.max_body_bytes,
-                }
+                ApiError::BodyTooLarge { limit }
             } else {
                 ApiError::BadRequest("the request body could not be read".into())
             }
-        })?;
+        })
+}
+
+async fn read_json(request: Request, limits: &InputLimits) -> Result<Submission, ApiError> {
+    let body = read_body(request, limits.max_body_bytes).await?;
     let json: JsonSubmission = serde_json::from_slice(&body)
         .map_err(|error| ApiError::BadRequest(format!("JSON body: {error}")))?;
     if json.masks.len() > limits.max_masks {
@@ -310,19 +314,21 @@ pub fn hex(bytes: &[u8]) -> String {
 }
 
 /// Decodes and cross-checks the inputs of a job (CPU work: call off the async runtime).
+/// `accept_truncated`: the client's `accept_truncated` (a JPEG cut short is refused without).
 pub fn decode_inputs(
     image: &[u8],
     albedo: Option<&[u8]>,
     masks: &[Bytes],
     labels: Option<&[u8]>,
     limits: &InputLimits,
+    accept_truncated: bool,
 ) -> Result<Inputs, ApiError> {
     if !masks.is_empty() && labels.is_some() {
         return Err(ApiError::InvalidInput(
             "send either `mask` fields or one `labels` map, not both".into(),
         ));
     }
-    let decode_limits = limits.decoding();
+    let decode_limits = limits.decoding(accept_truncated);
     let mut decoded = 0u64;
     let mut count = |bytes: usize| {
         decoded += bytes as u64;
@@ -384,6 +390,8 @@ pub(super) fn input_error(what: &'static str) -> impl Fn(imageio::InputError) ->
             limit: max as u64,
             actual: count as u64,
         },
+        imageio::InputError::TooManyLabels { max } => ApiError::TooManyLabels { limit: max as u64 },
+        imageio::InputError::Truncated => ApiError::TruncatedImage(what),
         aspect @ imageio::InputError::AspectRatio { .. } => {
             ApiError::InvalidInput(aspect.to_string())
         }
