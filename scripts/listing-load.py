@@ -187,6 +187,10 @@ def main():
         finally:
             process.terminate()
             process.wait()
+        process, port, startup = start(args.covec, data_dir)
+        process.terminate()
+        process.wait()
+        print(f"restarted on the same data directory: ready in {startup:.2f} s")
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -481,3 +481,48 @@ async fn deletes_on_a_full_or_read_only_disk_leave_no_half_done_state() {
     server.kill();
     drop(tmpfs);
 }
+
+/// Item 10: a result cut short or altered on disk is a 500 `result-corrupt` problem, never a
+/// 200 with bad bytes (each result's digest is recorded when it is written).
+#[tokio::test(flavor = "multi_thread")]
+async fn damaged_results_are_problems_not_200s() {
+    let dir = DataDir::new("damaged");
+    let server = Server::start(&dir.0, &["--workers", "1"]);
+    let id = submit(&server, QUICK_PARAMS, 32).await;
+    server
+        .wait_for(&id, Duration::from_secs(60), |job| {
+            job["status"] == "succeeded"
+        })
+        .await;
+    let jobs = job_dir(&dir.0, &id);
+    let svg = std::fs::read(jobs.join("result.svg")).unwrap();
+    std::fs::write(jobs.join("result.svg"), &svg[..svg.len() / 2]).unwrap();
+    let scene = std::fs::read(jobs.join("scene.json")).unwrap();
+    let mut altered = scene.clone();
+    let last = altered.len() - 2;
+    altered[last] ^= 1;
+    std::fs::write(jobs.join("scene.json"), &altered).unwrap();
+    for path in ["svg", "scene.json", "png"] {
+        let reply = server.get(&format!("/v1/jobs/{id}/{path}")).await;
+        assert_eq!(reply.status, StatusCode::INTERNAL_SERVER_ERROR, "{path}");
+        assert_eq!(service_support::problem(&reply)["code"], "result-corrupt");
+    }
+    let layer = server
+        .get(&format!("/v1/jobs/{id}/layers/albedo.svg"))
+        .await;
+    assert_eq!(
+        layer.status,
+        StatusCode::OK,
+        "an intact result still serves"
+    );
+    // Put back whole, they serve again (also after a restart: the digests are stored).
+    std::fs::write(jobs.join("result.svg"), &svg).unwrap();
+    std::fs::write(jobs.join("scene.json"), &scene).unwrap();
+    server.stop();
+    let server = Server::start(&dir.0, &["--workers", "1"]);
+    let reply = server.get(&format!("/v1/jobs/{id}/svg")).await;
+    assert_eq!(
+        (reply.status, reply.body.as_ref()),
+        (StatusCode::OK, svg.as_slice())
+    );
+}

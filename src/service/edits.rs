@@ -161,10 +161,16 @@ async fn create(
         check_edit_id(base)?;
     }
 
+    // A reference edit decodes two images: it takes a decode slot as a submission does.
+    let slot = match edit_request {
+        EditRequest::Reference { .. } => Some(state.decode_slot().await?),
+        EditRequest::Colors(_) => None,
+    };
     let queue = state.queue.clone();
     let max_pixels = state.limits.max_pixels;
     let job_id = id.clone();
     let record = tokio::task::spawn_blocking(move || {
+        let _slot = slot;
         let store = queue.store();
         let read = |name: &str| store.read_artefact(&job_id, name).map_err(ApiError::from);
         let prefix = base

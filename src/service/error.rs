@@ -81,6 +81,8 @@ pub enum ApiError {
     IdempotencyMismatch,
     #[error("the job queue is full ({0} jobs); retry later")]
     QueueFull(usize, u64),
+    #[error("every decoding slot stayed busy for {0} s; retry later")]
+    DecodeBusy(u64),
     #[error("the server is shutting down")]
     ShuttingDown,
     #[error("job `{0}` has status `{1}`; results exist once it has succeeded")]
@@ -91,6 +93,10 @@ pub enum ApiError {
     TimeLimit(u64),
     #[error("the pipeline failed unexpectedly: {0}")]
     PipelineCrashed(String),
+    #[error(
+        "the stored result `{0}` is damaged (it does not match the digest recorded when it was written)"
+    )]
+    CorruptResult(String),
     #[error("internal error: {0}")]
     Internal(String),
 }
@@ -112,11 +118,13 @@ impl ApiError {
             | InputsTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
             TruncatedImage(_) | UndecodableImage(..) | InvalidParams(_) | InvalidInput(_)
             | IdempotencyMismatch => StatusCode::UNPROCESSABLE_ENTITY,
-            QueueFull(..) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
+            QueueFull(..) | DecodeBusy(_) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             NotReady(..) => StatusCode::CONFLICT,
             DataRemoved(_) => StatusCode::GONE,
             TimeLimit(_) => StatusCode::REQUEST_TIMEOUT,
-            PipelineCrashed(_) | Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+            PipelineCrashed(_) | CorruptResult(_) | Internal(_) => {
+                StatusCode::INTERNAL_SERVER_ERROR
+            }
         }
     }
 
@@ -144,18 +152,20 @@ impl ApiError {
             InvalidInput(_) => "invalid-input",
             IdempotencyMismatch => "idempotency-key-reused",
             QueueFull(..) => "queue-full",
+            DecodeBusy(_) => "decode-busy",
             ShuttingDown => "shutting-down",
             NotReady(..) => "job-not-succeeded",
             DataRemoved(_) => "data-removed",
             TimeLimit(_) => "time-limit",
             PipelineCrashed(_) => "pipeline-crashed",
+            CorruptResult(_) => "result-corrupt",
             Internal(_) => "internal",
         }
     }
 
     fn retry_after(&self) -> Option<u64> {
         match self {
-            ApiError::QueueFull(_, seconds) => Some(*seconds),
+            ApiError::QueueFull(_, seconds) | ApiError::DecodeBusy(seconds) => Some(*seconds),
             ApiError::ShuttingDown => Some(5),
             _ => None,
         }

@@ -101,10 +101,7 @@ async fn create(
     }
     // Decoding is CPU work: off the async workers, and a few requests at a time. The slot goes
     // with the decoding, which runs on even if the client leaves.
-    let slot = Arc::clone(&state.decode_slots)
-        .acquire_owned()
-        .await
-        .map_err(|error| ApiError::Internal(error.to_string()))?;
+    let slot = state.decode_slot().await?;
     let limits = state.limits.clone();
     let submission = tokio::task::spawn_blocking(move || {
         let _slot = slot;
@@ -165,6 +162,7 @@ async fn create(
         error: None,
         idempotency: key.map(|key| Idempotency { key, fingerprint }),
         data_removed: false,
+        checksums: Default::default(),
     };
     let queue = state.queue.clone();
     let admission = tokio::task::spawn_blocking(move || queue.admit(record, inputs))

@@ -167,6 +167,19 @@ impl AppState {
     }
 }
 
+impl AppState {
+    /// A permit to decode one request's images: waits up to [`submit::DECODE_WAIT`] for one of
+    /// the [`InputLimits::decode_slots`], then refuses with 503 `decode-busy` (the request's
+    /// body stays in memory while it waits, so waiting is bounded too).
+    async fn decode_slot(&self) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
+        let permit = Arc::clone(&self.decode_slots).acquire_owned();
+        match tokio::time::timeout(submit::DECODE_WAIT, permit).await {
+            Ok(permit) => permit.map_err(|error| ApiError::Internal(error.to_string())),
+            Err(_) => Err(ApiError::DecodeBusy(submit::DECODE_WAIT.as_secs())),
+        }
+    }
+}
+
 /// One route: a method and an OpenAPI-style path, with its handler.
 pub struct Endpoint {
     /// The HTTP method.

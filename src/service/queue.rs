@@ -22,7 +22,7 @@ use tracing::{info, info_span, warn};
 use super::error::ApiError;
 use super::model::{CancelReason, JobRecord, ProgressView, Status, now_ms};
 use super::ops::Metrics;
-use super::store::{Store, StoreError};
+use super::store::{Store, StoreError, digest};
 use super::submit::{InputLimits, decode_inputs, input_error};
 use crate::pipeline::{self, Observer, Progress};
 use crate::render::Image;
@@ -684,7 +684,7 @@ impl Queue {
         }));
         deadline.abort();
         match result {
-            Ok(Ok(output)) => match self.write_results(&entry.id, &output) {
+            Ok(Ok(output)) => match self.write_results(entry, &output) {
                 Ok(()) => Outcome::Succeeded(output.mode.into()),
                 Err(error) => Outcome::Failed(ApiError::from(error)),
             },
@@ -714,13 +714,37 @@ impl Queue {
         }
     }
 
-    /// The run's files, in [`pipeline::Output::artefacts`] order (`result.svg` last).
-    fn write_results(&self, id: &str, output: &pipeline::Output) -> Result<(), StoreError> {
+    /// The run's files, in [`pipeline::Output::artefacts`] order (`result.svg` last), with
+    /// their digests in the record (saved when the job is marked succeeded).
+    fn write_results(&self, entry: &JobEntry, output: &pipeline::Output) -> Result<(), StoreError> {
+        let mut checksums = BTreeMap::new();
         for artefact in output.artefacts() {
+            let name = artefact.kind.name();
             self.store
-                .write_artefact(id, &artefact.kind.name(), &artefact.bytes)?;
+                .write_artefact(&entry.id, &name, &artefact.bytes)?;
+            checksums.insert(name, digest(&artefact.bytes));
         }
+        entry
+            .record
+            .send_modify(|record| record.checksums = checksums);
         Ok(())
+    }
+
+    /// A stored file of a job, checked against the digest recorded when it was written (a
+    /// result cut short or altered on disk is an error, never served as if whole).
+    pub fn read_result(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>, ApiError> {
+        let expected = lock(&self.state)
+            .jobs
+            .get(id)
+            .and_then(|entry| entry.record.borrow().checksums.get(name).cloned());
+        let bytes = self.store.read_artefact(id, name)?;
+        if let (Some(bytes), Some(expected)) = (&bytes, expected)
+            && digest(bytes) != expected
+        {
+            tracing::error!(job_id = %id, name, "a stored result does not match its digest");
+            return Err(ApiError::CorruptResult(name.to_owned()));
+        }
+        Ok(bytes)
     }
 }
 

@@ -16,6 +16,7 @@ use std::sync::Mutex;
 use std::time::Duration;
 
 use rusqlite::{Connection, params};
+use sha2::{Digest, Sha256};
 
 use super::error::ApiError;
 use super::model::{JobRecord, Status, is_job_id, now_ms};
@@ -151,6 +152,14 @@ impl Store {
         // One transaction: a backfill of many rows is one commit, not one each.
         let db = connection.unchecked_transaction()?;
         db.execute("DELETE FROM jobs WHERE deleted = 1", [])?;
+        // Rows from before the listing columns: filled in one statement (the loop below
+        // quarantines those that are not JSON).
+        db.execute(
+            "UPDATE jobs SET owner = json_extract(record, '$.owner'),
+                 status = json_extract(record, '$.status')
+             WHERE status IS NULL AND json_valid(record)",
+            [],
+        )?;
         let rows: Vec<(String, String, Option<String>)> = db
             .prepare("SELECT id, record, status FROM jobs ORDER BY id")?
             .query_map([], |row| Ok((row.get(0)?, row.get(1)?, row.get(2)?)))?
@@ -163,7 +172,7 @@ impl Store {
             match parse_record(&id, &json) {
                 Ok(record) => {
                     if status.as_deref() != Some(record.status.name()) {
-                        // A row from before the listing columns, or whose last write was lost.
+                        // The columns disagree with the record (a hand-edited row).
                         db.execute(
                             "UPDATE jobs SET owner = ?2, status = ?3 WHERE id = ?1",
                             params![id, record.owner, record.status.name()],
@@ -345,6 +354,11 @@ fn parse_record(id: &str, json: &str) -> Result<JobRecord, StoreError> {
         return Err(corrupt(format!("it holds the record of `{}`", record.id)));
     }
     Ok(record)
+}
+
+/// SHA-256 of a stored file in hex, recorded when it is written and checked when it is served.
+pub fn digest(bytes: &[u8]) -> String {
+    super::submit::hex(&Sha256::digest(bytes))
 }
 
 /// Temporary file in the same directory, fsync, rename over the target.

@@ -35,10 +35,14 @@ pub struct InputLimits {
     /// masks at 1, a label map as decoded), counted as they decode. Default 256 MiB: 256 masks
     /// of 4000² would otherwise hold 4 GB.
     pub max_decoded_bytes: u64,
-    /// Requests that decode their inputs at once; others wait their turn. Default 2: with the
-    /// decoded budget this bounds the memory decoding can take.
+    /// Requests that decode their inputs at once; others wait their turn, up to
+    /// [`DECODE_WAIT`], then get 503 `decode-busy`. Default 2: with the decoded budget this
+    /// bounds the memory decoding can take.
     pub decode_slots: usize,
 }
+
+/// Longest wait for a decode slot before a request is refused with 503 `decode-busy`.
+pub const DECODE_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
 
 impl InputLimits {
     /// The parameter ranges these limits allow.
