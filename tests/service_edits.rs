@@ -280,7 +280,9 @@ async fn edits_are_capped_and_their_files_served_without_the_record() {
         (refused["code"].as_str(), refused["limit"].as_u64()),
         (Some("too-many-changes"), Some(4096))
     );
-    let padding = " ".repeat(2 << 20);
+    // 1.5 MiB: over the 1 MiB limit, within the twice-the-limit the server reads before
+    // answering (so the client gets the 413 rather than a reset).
+    let padding = " ".repeat(3 << 19);
     let reply = server
         .request(
             Method::POST,

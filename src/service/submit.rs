@@ -108,25 +108,7 @@ pub async fn read(request: Request, limits: &InputLimits) -> Result<Submission, 
         .and_then(|value| value.to_str().ok())
         .unwrap_or("")
         .to_owned();
-    let declared_length = request
-        .headers()
-        .get(header::CONTENT_LENGTH)
-        .and_then(|value| value.to_str().ok())
-        .and_then(|value| value.parse::<u64>().ok());
-    if let Some(length) = declared_length
-        && length > limits.max_body_bytes
-    {
-        // Read (and drop) a body up to twice the limit before answering: closing a connection
-        // with unread data makes the kernel reset it, and the client may lose the 413.
-        // Anything larger is cut off at once.
-        if length <= limits.max_body_bytes.saturating_mul(2) {
-            let mut body = request.into_body();
-            while let Some(Ok(_)) = body.frame().await {}
-        }
-        return Err(ApiError::BodyTooLarge {
-            limit: limits.max_body_bytes,
-        });
-    }
+    let request = refuse_declared_over(request, limits.max_body_bytes).await?;
     let media_type = content_type
         .split(';')
         .next()
@@ -202,8 +184,31 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
     })
 }
 
+/// 413 for a request whose declared `Content-Length` is over `limit`, before reading it.
+async fn refuse_declared_over(request: Request, limit: u64) -> Result<Request, ApiError> {
+    let declared_length = request
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|value| value.to_str().ok())
+        .and_then(|value| value.parse::<u64>().ok());
+    if let Some(length) = declared_length
+        && length > limit
+    {
+        // Read (and drop) a body up to twice the limit before answering: closing a connection
+        // with unread data makes the kernel reset it, and the client may lose the 413.
+        // Anything larger is cut off at once.
+        if length <= limit.saturating_mul(2) {
+            let mut body = request.into_body();
+            while let Some(Ok(_)) = body.frame().await {}
+        }
+        return Err(ApiError::BodyTooLarge { limit });
+    }
+    Ok(request)
+}
+
 /// A whole request body of at most `limit` bytes: 413 beyond it, 400 when it cannot be read.
 pub(super) async fn read_body(request: Request, limit: u64) -> Result<Bytes, ApiError> {
+    let request = refuse_declared_over(request, limit).await?;
     axum::body::to_bytes(request.into_body(), limit as usize)
         .await
         .map_err(|error| {
