@@ -18,6 +18,9 @@ pub struct Limits {
     pub max_pixels: u64,
     /// Most masks accepted (binary masks, or distinct values of a label map). Default 256.
     pub max_masks: usize,
+    /// Decode a JPEG that ends before its end-of-image marker (the decoder fills the missing
+    /// part with grey). Default false: such a file is refused as [`InputError::Truncated`].
+    pub accept_truncated: bool,
 }
 
 impl Default for Limits {
@@ -25,6 +28,7 @@ impl Default for Limits {
         Self {
             max_pixels: 40_000_000,
             max_masks: 256,
+            accept_truncated: false,
         }
     }
 }
@@ -57,9 +61,21 @@ pub enum InputError {
     #[allow(missing_docs)]
     NonBinaryMask { name: String, levels: usize },
     #[error("{count} masks given, more than the limit of {max} (raise --max-masks)")]
-    /// More masks (or label values) than [`Limits::max_masks`].
+    /// More masks than [`Limits::max_masks`].
     #[allow(missing_docs)]
     TooManyMasks { count: usize, max: usize },
+    #[error(
+        "the label map holds more than {max} distinct values, each of which would be a mask; the limit is {max} (raise --max-masks)"
+    )]
+    /// A label map with more distinct values than [`Limits::max_masks`] (counting stops at
+    /// the first one over).
+    #[allow(missing_docs)]
+    TooManyLabels { max: usize },
+    #[error(
+        "the JPEG data ends before its end-of-image marker: the file is truncated (its missing part would be decoded as grey)"
+    )]
+    /// A JPEG cut short, refused unless [`Limits::accept_truncated`].
+    Truncated,
     #[error(
         "{what} is {width}×{height}, which does not have the image's aspect ratio ({image_width}×{image_height})"
     )]
@@ -156,8 +172,7 @@ pub fn decode_labels(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, Inpu
     for pixel in rgba.pixels() {
         seen.insert(pixel.0);
         if seen.len() > limits.max_masks {
-            return Err(InputError::TooManyMasks {
-                count: seen.len(),
+            return Err(InputError::TooManyLabels {
                 max: limits.max_masks,
             });
         }
@@ -234,6 +249,12 @@ fn decode_oriented(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputE
             "not a PNG, JPEG or WebP file".into(),
         ));
     }
+    if reader.format() == Some(image::ImageFormat::Jpeg)
+        && !limits.accept_truncated
+        && !jpeg_is_complete(bytes)
+    {
+        return Err(InputError::Truncated);
+    }
     // Our own pixel limit is checked first, from the header; the decoder's allocation limit
     // is set after it (room for the largest allowed image at 16-bit RGBA, twice).
     reader.no_limits();
@@ -258,6 +279,50 @@ fn decode_oriented(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputE
     let mut image = DynamicImage::from_decoder(decoder).map_err(undecodable)?;
     image.apply_orientation(orientation);
     Ok(image)
+}
+
+/// Whether JPEG data reaches its end-of-image marker: the segments are walked from the start
+/// (each scan's entropy-coded data up to the next marker), so data appended after the image
+/// does not count and a file cut anywhere before the marker is caught. The decoders accept a
+/// cut file and fill the rest with grey.
+fn jpeg_is_complete(bytes: &[u8]) -> bool {
+    const EOI: u8 = 0xD9;
+    const SOS: u8 = 0xDA;
+    let mut at = 2; // after SOI
+    loop {
+        // A marker: 0xFF (fill bytes allowed), then its code.
+        while bytes.get(at) == Some(&0xFF) && bytes.get(at + 1) == Some(&0xFF) {
+            at += 1;
+        }
+        let (Some(0xFF), Some(&code)) = (bytes.get(at), bytes.get(at + 1)) else {
+            return false;
+        };
+        at += 2;
+        match code {
+            EOI => return true,
+            // Markers without a length.
+            0x01 | 0xD0..=0xD7 => continue,
+            _ => {}
+        }
+        let Some(length) = bytes
+            .get(at..at + 2)
+            .map(|b| usize::from(u16::from_be_bytes([b[0], b[1]])))
+        else {
+            return false;
+        };
+        at += length;
+        if code == SOS {
+            // Entropy-coded data: up to a 0xFF that is neither stuffing (0x00) nor a restart.
+            loop {
+                match (bytes.get(at), bytes.get(at + 1)) {
+                    (Some(0xFF), Some(0x00 | 0xD0..=0xD7)) => at += 2,
+                    (Some(0xFF), Some(_)) => break,
+                    (Some(_), _) => at += 1,
+                    (None, _) => return false,
+                }
+            }
+        }
+    }
 }
 
 /// Composites any alpha over white and drops it, keeping the bit depth.

@@ -170,7 +170,7 @@ fn undecodable_bytes_and_non_binary_masks_are_named() {
     )
     .unwrap_err();
     assert!(
-        matches!(err, InputError::TooManyMasks { max: 10, .. }),
+        matches!(err, InputError::TooManyLabels { max: 10 }),
         "{err}"
     );
 }

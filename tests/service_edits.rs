@@ -255,3 +255,75 @@ async fn bad_edits_are_4xx_problems() {
     problem(&reply);
     server.stop();
 }
+
+/// Edits are capped (issue 13, item 7): too many changes or too large a body is a 413 with its
+/// code, an oversized reference image a 413 `too-many-pixels`; a capped edit's files are
+/// served without its record being read (its preview is a few KB whatever the edit holds).
+#[tokio::test]
+async fn edits_are_capped_and_their_files_served_without_the_record() {
+    let dir = DataDir::new("edits-capped");
+    let server = Server::start(&dir.0, &["--workers", "1", "--max-pixels", "4000"]);
+    let id = finished_job(&server).await;
+    let path = format!("/v1/jobs/{id}/edits");
+    let change = json!({"path": "albedo-0", "color": "#123456"});
+    let reply = server
+        .post_json(&path, &json!({ "changes": vec![change.clone(); 4097] }))
+        .await;
+    assert_eq!(
+        reply.status,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "{}",
+        reply.text()
+    );
+    let refused = problem(&reply);
+    assert_eq!(
+        (refused["code"].as_str(), refused["limit"].as_u64()),
+        (Some("too-many-changes"), Some(4096))
+    );
+    // 1.5 MiB: over the 1 MiB limit, within the twice-the-limit the server reads before
+    // answering (so the client gets the 413 rather than a reset).
+    let padding = " ".repeat(3 << 19);
+    let reply = server
+        .request(
+            Method::POST,
+            &path,
+            &[("content-type", "application/json")],
+            format!(r#"{{"changes": [{change}]{padding}}}"#).into_bytes(),
+        )
+        .await;
+    assert_eq!(
+        reply.status,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "{}",
+        reply.text()
+    );
+    assert_eq!(problem(&reply)["code"], "body-too-large");
+    // 96² = 9216 pixels, over the limit of 4000 (the job's 48² input is under it).
+    let big = test_png(96);
+    let reply = post_reference(&server, &id, &[("reference", &big)]).await;
+    assert_eq!(
+        reply.status,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "{}",
+        reply.text()
+    );
+    assert_eq!(problem(&reply)["code"], "too-many-pixels");
+
+    // The largest edit allowed; then its record is made a directory, which reading fails
+    // on: the files still serve, so serving them never reads the record.
+    let created = server
+        .post_json(&path, &json!({ "changes": vec![change; 4096] }))
+        .await;
+    assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
+    let edit = created.json()["id"].as_str().unwrap().to_owned();
+    let record = dir.0.join(format!("jobs/{id}/edits/{edit}/edit.json"));
+    std::fs::remove_file(&record).unwrap();
+    std::fs::create_dir(&record).unwrap();
+    for file in ["preview.png", "svg", "scene.json"] {
+        let reply = server
+            .get(&format!("/v1/jobs/{id}/edits/{edit}/{file}"))
+            .await;
+        assert_eq!(reply.status, StatusCode::OK, "{file}: {}", reply.text());
+    }
+    server.stop();
+}

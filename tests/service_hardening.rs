@@ -268,3 +268,175 @@ async fn decoded_inputs_are_capped_per_job() {
     assert_eq!(problem["limit"], 20480);
     assert_eq!(problem["actual"], 24576);
 }
+
+/// `POST /v1/jobs{query}` with `image` and quick parameters.
+async fn submit_to(server: &Server, image: &[u8], query: &str) -> service_support::Reply {
+    let params = service_support::QUICK_PARAMS.as_bytes();
+    let (content_type, body) = service_support::multipart(&[("image", image), ("params", params)]);
+    server
+        .request(
+            Method::POST,
+            &format!("/v1/jobs{query}"),
+            &[("content-type", &content_type)],
+            body,
+        )
+        .await
+}
+
+/// A JPEG cut in half is refused (422 `truncated-image`) rather than vectorised on grey fill,
+/// unless the client opts in with `accept_truncated=true`; a label map with too many values
+/// says so (not "257 masks were sent").
+#[tokio::test]
+async fn truncated_jpegs_and_crowded_label_maps_are_refused_clearly() {
+    let dir = DataDir::new("truncated");
+    let server = Server::start(&dir.0, &["--max-masks", "8"]);
+    // Large enough that half the file is well into the scan data.
+    let photo = image::load_from_memory(&service_support::test_png(192)).unwrap();
+    let mut jpeg = Vec::new();
+    photo
+        .write_to(
+            &mut std::io::Cursor::new(&mut jpeg),
+            image::ImageFormat::Jpeg,
+        )
+        .unwrap();
+    let half = &jpeg[..jpeg.len() / 2];
+    let params = service_support::QUICK_PARAMS.as_bytes();
+    let refused = submit_to(&server, half, "").await;
+    assert_eq!(
+        refused.status,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "{}",
+        refused.text()
+    );
+    assert_eq!(
+        service_support::problem(&refused)["code"],
+        "truncated-image"
+    );
+    let accepted = submit_to(&server, half, "?accept_truncated=true").await;
+    assert_eq!(accepted.status, StatusCode::CREATED, "{}", accepted.text());
+    let id = accepted.json()["id"].as_str().unwrap().to_owned();
+    let job = server
+        .wait_for(&id, Duration::from_secs(60), |job| {
+            job["status"] != "queued" && job["status"] != "running"
+        })
+        .await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let whole = submit_to(&server, &jpeg, "").await;
+    assert_eq!(whole.status, StatusCode::CREATED, "{}", whole.text());
+    let bad_query = submit_to(&server, &jpeg, "?accept_truncated=maybe").await;
+    assert_eq!(
+        bad_query.status,
+        StatusCode::BAD_REQUEST,
+        "{}",
+        bad_query.text()
+    );
+
+    // 10 grey levels with a limit of 8 masks.
+    let labels = image::GrayImage::from_fn(48, 48, |x, _| image::Luma([(x / 5) as u8 * 20]));
+    let labels = service_support::png(&image::DynamicImage::ImageLuma8(labels));
+    let image = service_support::test_png(48);
+    let (content_type, body) =
+        service_support::multipart(&[("image", &image), ("labels", &labels), ("params", params)]);
+    let refused = server
+        .request(
+            Method::POST,
+            "/v1/jobs",
+            &[("content-type", &content_type)],
+            body,
+        )
+        .await;
+    assert_eq!(
+        refused.status,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "{}",
+        refused.text()
+    );
+    let problem = service_support::problem(&refused);
+    assert_eq!(
+        (problem["code"].as_str(), problem["limit"].as_u64()),
+        (Some("too-many-masks"), Some(8))
+    );
+    let detail = problem["detail"].as_str().unwrap();
+    assert!(
+        detail.contains("label map holds more than 8 distinct values"),
+        "{detail}"
+    );
+    assert!(!detail.contains("masks were sent"), "{detail}");
+}
+
+/// The memory attacks with default settings, the server's peak RSS (`VmHWM`) held under
+/// 1 GiB: a flat 4000² image with 256 all-zero 4000² masks (4.5 GiB before the decode cap),
+/// concurrent 4000² RGBA16 PNGs (3.2 GiB for 16 before the decode slots), then made-up
+/// methods and scrapes of `/metrics`.
+#[tokio::test(flavor = "multi_thread")]
+async fn peak_memory_stays_under_1_gib_under_decode_and_metrics_attacks() {
+    let dir = DataDir::new("memory-ceiling");
+    let server = Arc::new(Server::start(&dir.0, &["--max-queued", "64"]));
+    let side = 4000;
+    let flat = service_support::png(&image::DynamicImage::ImageRgb8(
+        image::RgbImage::from_pixel(side, side, image::Rgb([128, 128, 128])),
+    ));
+    let zero_mask = service_support::png(&image::DynamicImage::ImageLuma8(image::GrayImage::new(
+        side, side,
+    )));
+    let rgba16 = service_support::png(&image::DynamicImage::ImageRgba16(
+        image::ImageBuffer::from_fn(side, side, |x, y| {
+            image::Rgba([(x * 16) as u16, (y * 16) as u16, 30_000, 65_535])
+        }),
+    ));
+    let params = service_support::QUICK_PARAMS.as_bytes();
+    let mut masked: Vec<(&str, &[u8])> = vec![("image", &flat), ("params", params)];
+    masked.extend(std::iter::repeat_n(("mask", zero_mask.as_slice()), 256));
+    let (masked_type, masked_body) = service_support::multipart(&masked);
+    let (rgba_type, rgba_body) =
+        service_support::multipart(&[("image", &rgba16), ("params", params)]);
+    let attacks: Vec<_> = (0..10)
+        .map(|i| {
+            let server = Arc::clone(&server);
+            let (content_type, body) = if i < 2 {
+                (masked_type.clone(), masked_body.clone())
+            } else {
+                (rgba_type.clone(), rgba_body.clone())
+            };
+            tokio::spawn(async move {
+                server
+                    .request(
+                        Method::POST,
+                        "/v1/jobs",
+                        &[("content-type", &content_type)],
+                        body,
+                    )
+                    .await
+            })
+        })
+        .collect();
+    let mut statuses = Vec::new();
+    for attack in attacks {
+        let reply = attack.await.unwrap();
+        assert!(
+            [
+                StatusCode::CREATED,
+                StatusCode::PAYLOAD_TOO_LARGE,
+                StatusCode::SERVICE_UNAVAILABLE
+            ]
+            .contains(&reply.status),
+            "{} {}",
+            reply.status,
+            reply.text()
+        );
+        statuses.push(reply.status.as_u16());
+    }
+    for i in 0..2000 {
+        let method = Method::from_bytes(format!("M{i}").as_bytes()).unwrap();
+        server.request(method, "/healthz", &[], Vec::new()).await;
+        if i % 100 == 0 {
+            assert_eq!(server.get("/metrics").await.status, StatusCode::OK);
+        }
+    }
+    let peak = server.peak_rss_kib().expect("VmHWM in /proc");
+    println!(
+        "decode attacks answered {statuses:?}; peak RSS {} MiB",
+        peak / 1024
+    );
+    assert!(peak < 1 << 20, "peak RSS {} MiB", peak / 1024);
+}

@@ -77,6 +77,9 @@ pub struct Args {
     /// Refuse more masks (files in --masks, or distinct values in --labels) than this.
     #[arg(long, default_value_t = Limits::default().max_masks, value_name = "N")]
     pub max_masks: usize,
+    /// Use a JPEG cut short (its missing part decodes as grey) instead of refusing it.
+    #[arg(long)]
+    pub accept_truncated: bool,
 }
 
 /// Why `covec vectorize` failed; printed as one line.
@@ -104,6 +107,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let limits = Limits {
         max_pixels: args.max_pixels,
         max_masks: args.max_masks,
+        accept_truncated: args.accept_truncated,
     };
     let decode = |path: &Path| io::decode_image(path, &limits);
     let image = decode(&args.input)?;

@@ -14,6 +14,7 @@ use super::auth::Owner;
 use super::error::ApiError;
 use super::jobs::find;
 use super::results::{artefact, require_success, scene_file, stored_scene};
+use super::submit::{input_error, read_body};
 use super::{AppState, Endpoint, endpoint};
 use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
 use crate::imageio::{self, resize_rgb};
@@ -160,10 +161,16 @@ async fn create(
         check_edit_id(base)?;
     }
 
+    // A reference edit decodes two images: it takes a decode slot as a submission does.
+    let slot = match edit_request {
+        EditRequest::Reference { .. } => Some(state.decode_slot().await?),
+        EditRequest::Colors(_) => None,
+    };
     let queue = state.queue.clone();
     let max_pixels = state.limits.max_pixels;
     let job_id = id.clone();
     let record = tokio::task::spawn_blocking(move || {
+        let _slot = slot;
         let store = queue.store();
         let read = |name: &str| store.read_artefact(&job_id, name).map_err(ApiError::from);
         let prefix = base
@@ -180,14 +187,19 @@ async fn create(
                     max_pixels,
                     ..imageio::Limits::default()
                 };
+                // The job's input passed the submission's checks (a cut JPEG only if the
+                // client accepted it).
                 let original = imageio::decode_image(
                     &read("input/image")?
                         .ok_or_else(|| ApiError::ResultNotFound("input/image".into()))?,
-                    &limits,
+                    &imageio::Limits {
+                        accept_truncated: true,
+                        ..limits.clone()
+                    },
                 )
                 .map_err(|e| ApiError::Internal(format!("stored input: {e}")))?;
                 let reference = imageio::decode_image(&image, &limits)
-                    .map_err(|e| ApiError::UndecodableImage("reference image", e.to_string()))?;
+                    .map_err(input_error("reference image"))?;
                 imageio::check_aspect(
                     "the reference image",
                     (reference.width(), reference.height()),
@@ -217,12 +229,25 @@ async fn create(
     Ok(response)
 }
 
+/// Largest JSON edit body. A change takes about 60 bytes, so this is room for some 16 000,
+/// far more than the 1024 paths a scene may have; it bounds what an edit holds in memory.
+const MAX_EDIT_JSON_BYTES: u64 = 1 << 20;
+
+/// Most changes in one edit, and so in its stored record (which a client reads whole).
+const MAX_EDIT_CHANGES: usize = 4096;
+
 async fn read_color_edit(request: Request) -> Result<(Option<String>, EditRequest), ApiError> {
-    let Json(body) = Json::<ColorEdit>::from_request(request, &())
-        .await
-        .map_err(|rejection| ApiError::BadRequest(rejection.body_text()))?;
+    let body = read_body(request, MAX_EDIT_JSON_BYTES).await?;
+    let body: ColorEdit = serde_json::from_slice(&body)
+        .map_err(|error| ApiError::BadRequest(format!("JSON body: {error}")))?;
     if body.changes.is_empty() {
         return Err(ApiError::BadRequest("`changes` is empty".into()));
+    }
+    if body.changes.len() > MAX_EDIT_CHANGES {
+        return Err(ApiError::TooManyChanges {
+            limit: MAX_EDIT_CHANGES as u64,
+            actual: body.changes.len() as u64,
+        });
     }
     let changes = body
         .changes
@@ -386,7 +411,15 @@ async fn edit_file(
     kind: FileKind,
 ) -> Result<Response, ApiError> {
     check_edit(state, owner, id, edit_id).await?;
-    artefact(state, id, edit_record(edit_id), "application/json").await?;
+    // The record says the edit exists; only its size is looked at, never its changes.
+    let queue = state.queue.clone();
+    let (job, record) = (id.to_owned(), edit_record(edit_id));
+    let exists = tokio::task::spawn_blocking(move || queue.store().has_artefact(&job, &record))
+        .await
+        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    if !exists {
+        return Err(ApiError::ResultNotFound(edit_record(edit_id)));
+    }
     scene_file(state, id, &format!("edits/{edit_id}/"), kind).await
 }
 

@@ -55,6 +55,16 @@ pub enum ApiError {
     TooManyPixels { limit: u64, actual: u64 },
     #[error("{actual} masks were sent, more than the limit of {limit}")]
     TooManyMasks { limit: u64, actual: u64 },
+    #[error(
+        "the label map holds more than {limit} distinct values, each of which would be a mask; the limit is {limit}"
+    )]
+    TooManyLabels { limit: u64 },
+    #[error(
+        "the {0} is a JPEG cut short (it ends before its end-of-image marker); send `accept_truncated=true` to use it anyway, its missing part grey"
+    )]
+    TruncatedImage(&'static str),
+    #[error("{actual} changes were sent, more than the limit of {limit} per edit")]
+    TooManyChanges { limit: u64, actual: u64 },
     #[error("the decoded inputs reach {actual} bytes, more than the limit of {limit}")]
     InputsTooLarge { limit: u64, actual: u64 },
     #[error("malformed request: {0}")]
@@ -71,6 +81,8 @@ pub enum ApiError {
     IdempotencyMismatch,
     #[error("the job queue is full ({0} jobs); retry later")]
     QueueFull(usize, u64),
+    #[error("every decoding slot stayed busy for {0} s; retry later")]
+    DecodeBusy(u64),
     #[error("the server is shutting down")]
     ShuttingDown,
     #[error("job `{0}` has status `{1}`; results exist once it has succeeded")]
@@ -81,6 +93,10 @@ pub enum ApiError {
     TimeLimit(u64),
     #[error("the pipeline failed unexpectedly: {0}")]
     PipelineCrashed(String),
+    #[error(
+        "the stored result `{0}` is damaged (it does not match the digest recorded when it was written)"
+    )]
+    CorruptResult(String),
     #[error("internal error: {0}")]
     Internal(String),
 }
@@ -97,15 +113,18 @@ impl ApiError {
             BodyTooLarge { .. }
             | TooManyPixels { .. }
             | TooManyMasks { .. }
+            | TooManyLabels { .. }
+            | TooManyChanges { .. }
             | InputsTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
-            UndecodableImage(..) | InvalidParams(_) | InvalidInput(_) | IdempotencyMismatch => {
-                StatusCode::UNPROCESSABLE_ENTITY
-            }
-            QueueFull(..) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
+            TruncatedImage(_) | UndecodableImage(..) | InvalidParams(_) | InvalidInput(_)
+            | IdempotencyMismatch => StatusCode::UNPROCESSABLE_ENTITY,
+            QueueFull(..) | DecodeBusy(_) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             NotReady(..) => StatusCode::CONFLICT,
             DataRemoved(_) => StatusCode::GONE,
             TimeLimit(_) => StatusCode::REQUEST_TIMEOUT,
-            PipelineCrashed(_) | Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+            PipelineCrashed(_) | CorruptResult(_) | Internal(_) => {
+                StatusCode::INTERNAL_SERVER_ERROR
+            }
         }
     }
 
@@ -122,8 +141,10 @@ impl ApiError {
             UnsupportedMediaType(_) => "unsupported-media-type",
             BodyTooLarge { .. } => "body-too-large",
             TooManyPixels { .. } => "too-many-pixels",
-            TooManyMasks { .. } => "too-many-masks",
+            TooManyMasks { .. } | TooManyLabels { .. } => "too-many-masks",
+            TruncatedImage(_) => "truncated-image",
             InputsTooLarge { .. } => "inputs-too-large",
+            TooManyChanges { .. } => "too-many-changes",
             BadRequest(_) => "bad-request",
             BadQuery(_) => "bad-query",
             UndecodableImage(..) => "undecodable-image",
@@ -131,18 +152,20 @@ impl ApiError {
             InvalidInput(_) => "invalid-input",
             IdempotencyMismatch => "idempotency-key-reused",
             QueueFull(..) => "queue-full",
+            DecodeBusy(_) => "decode-busy",
             ShuttingDown => "shutting-down",
             NotReady(..) => "job-not-succeeded",
             DataRemoved(_) => "data-removed",
             TimeLimit(_) => "time-limit",
             PipelineCrashed(_) => "pipeline-crashed",
+            CorruptResult(_) => "result-corrupt",
             Internal(_) => "internal",
         }
     }
 
     fn retry_after(&self) -> Option<u64> {
         match self {
-            ApiError::QueueFull(_, seconds) => Some(*seconds),
+            ApiError::QueueFull(_, seconds) | ApiError::DecodeBusy(seconds) => Some(*seconds),
             ApiError::ShuttingDown => Some(5),
             _ => None,
         }
@@ -153,8 +176,11 @@ impl ApiError {
         let (limit, actual) = match self {
             ApiError::TooManyPixels { limit, actual }
             | ApiError::TooManyMasks { limit, actual }
+            | ApiError::TooManyChanges { limit, actual }
             | ApiError::InputsTooLarge { limit, actual } => (Some(*limit), Some(*actual)),
-            ApiError::BodyTooLarge { limit } => (Some(*limit), None),
+            ApiError::BodyTooLarge { limit } | ApiError::TooManyLabels { limit } => {
+                (Some(*limit), None)
+            }
             _ => (None, None),
         };
         Problem {

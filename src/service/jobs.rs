@@ -55,6 +55,15 @@ fn view(state: &AppState, entry: &JobEntry) -> JobView {
     JobView::new(&record, position)
 }
 
+/// The query of `POST /v1/jobs`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CreateQuery {
+    /// Use JPEGs cut short (the missing part decodes as grey) instead of refusing them.
+    #[serde(default)]
+    accept_truncated: bool,
+}
+
 const IDEMPOTENCY_KEY: &str = "idempotency-key";
 const PREFER: &str = "prefer";
 
@@ -75,6 +84,8 @@ async fn create(
         },
         None => None,
     };
+    let Query(options) = Query::<CreateQuery>::try_from_uri(request.uri())
+        .map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
     // Without a key, a full queue refuses before the body is read. With one, a retry gets its
     // replay even when the queue is full: capacity is checked once the key is looked up.
     if key.is_none() {
@@ -90,10 +101,7 @@ async fn create(
     }
     // Decoding is CPU work: off the async workers, and a few requests at a time. The slot goes
     // with the decoding, which runs on even if the client leaves.
-    let slot = Arc::clone(&state.decode_slots)
-        .acquire_owned()
-        .await
-        .map_err(|error| ApiError::Internal(error.to_string()))?;
+    let slot = state.decode_slot().await?;
     let limits = state.limits.clone();
     let submission = tokio::task::spawn_blocking(move || {
         let _slot = slot;
@@ -103,6 +111,7 @@ async fn create(
             &submission.masks,
             submission.labels.as_deref(),
             &limits,
+            options.accept_truncated,
         )
         .map(|_| submission)
     })
@@ -116,6 +125,7 @@ async fn create(
         albedo: submission.albedo.is_some(),
         masks: submission.masks.len(),
         labels: submission.labels.is_some(),
+        accept_truncated: options.accept_truncated,
     };
     inputs.extend(
         submission
@@ -152,6 +162,7 @@ async fn create(
         error: None,
         idempotency: key.map(|key| Idempotency { key, fingerprint }),
         data_removed: false,
+        checksums: Default::default(),
     };
     let queue = state.queue.clone();
     let admission = tokio::task::spawn_blocking(move || queue.admit(record, inputs))
@@ -285,9 +296,12 @@ async fn list(
             "`cursor` must be a `next_cursor` from an earlier page, not `{cursor}`"
         )));
     }
-    let (page, more) = state
-        .queue
-        .list(&owner.0, status, query.cursor.as_deref(), limit);
+    let queue = state.queue.clone();
+    let (page, more) = tokio::task::spawn_blocking(move || {
+        queue.list(&owner.0, status, query.cursor.as_deref(), limit)
+    })
+    .await
+    .map_err(|error| ApiError::Internal(error.to_string()))??;
     let next_cursor = if more {
         page.last().map(|(record, _)| record.id.clone())
     } else {

@@ -167,6 +167,19 @@ impl AppState {
     }
 }
 
+impl AppState {
+    /// A permit to decode one request's images: waits up to [`submit::DECODE_WAIT`] for one of
+    /// the [`InputLimits::decode_slots`], then refuses with 503 `decode-busy` (the request's
+    /// body stays in memory while it waits, so waiting is bounded too).
+    async fn decode_slot(&self) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
+        let permit = Arc::clone(&self.decode_slots).acquire_owned();
+        match tokio::time::timeout(submit::DECODE_WAIT, permit).await {
+            Ok(permit) => permit.map_err(|error| ApiError::Internal(error.to_string())),
+            Err(_) => Err(ApiError::DecodeBusy(submit::DECODE_WAIT.as_secs())),
+        }
+    }
+}
+
 /// One route: a method and an OpenAPI-style path, with its handler.
 pub struct Endpoint {
     /// The HTTP method.
@@ -312,18 +325,26 @@ pub async fn serve(
     Ok(())
 }
 
-/// Removes expired results periodically.
+/// Removes expired results, and job directories no job owns, periodically.
 async fn sweep_expired(queue: Arc<Queue>, retention: Duration) {
     let period = (retention / 10).clamp(Duration::from_secs(1), Duration::from_secs(60));
     let mut ticks = tokio::time::interval(period);
     loop {
         ticks.tick().await;
         let queue = queue.clone();
-        let removed = tokio::task::spawn_blocking(move || queue.expire(model::now_ms()))
-            .await
-            .unwrap_or(0);
+        let (removed, orphans) = tokio::task::spawn_blocking(move || {
+            (
+                queue.expire(model::now_ms()),
+                queue.sweep_orphans(queue::ORPHAN_AGE),
+            )
+        })
+        .await
+        .unwrap_or((0, 0));
         if removed > 0 {
             tracing::info!(removed, "expired job results removed");
+        }
+        if orphans > 0 {
+            tracing::info!(orphans, "orphaned job directories removed");
         }
     }
 }

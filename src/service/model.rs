@@ -1,5 +1,6 @@
 //! The job resource: the persisted record and its public JSON view.
 
+use std::collections::BTreeMap;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use serde::{Deserialize, Serialize};
@@ -79,6 +80,9 @@ pub struct InputManifest {
     /// Number of binary masks (`input/mask-<n>`).
     pub masks: usize,
     pub labels: bool,
+    /// The client accepted JPEGs cut short (`accept_truncated`).
+    #[serde(default)]
+    pub accept_truncated: bool,
 }
 
 /// Job progress as served (`progress` in the job resource and in events).
@@ -159,6 +163,9 @@ pub struct JobRecord {
     pub idempotency: Option<Idempotency>,
     /// Results deleted after the retention period.
     pub data_removed: bool,
+    /// SHA-256 (hex) of each result file by name, checked when it is served.
+    #[serde(default)]
+    pub checksums: BTreeMap<String, String>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -6,6 +6,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use axum::extract::{MatchedPath, Request, State};
@@ -167,6 +168,10 @@ pub struct Metrics {
     http: Mutex<HttpStats>,
     /// Outcome → run duration.
     jobs: Mutex<BTreeMap<&'static str, Histogram>>,
+    /// Unreadable job records moved to quarantine at start.
+    quarantined: AtomicU64,
+    /// Orphaned job directories removed since start.
+    orphans_swept: AtomicU64,
 }
 
 impl Metrics {
@@ -187,6 +192,15 @@ impl Metrics {
             .observe(JOB_BUCKETS, elapsed.as_secs_f64());
     }
 
+    pub fn set_quarantined(&self, count: usize) {
+        self.quarantined.store(count as u64, Ordering::Relaxed);
+    }
+
+    pub fn orphans_swept(&self, count: usize) {
+        self.orphans_swept
+            .fetch_add(count as u64, Ordering::Relaxed);
+    }
+
     /// Mean run time of succeeded jobs, for `Retry-After` estimates.
     pub fn mean_job_seconds(&self) -> Option<f64> {
         let jobs = self.jobs.lock().unwrap_or_else(|p| p.into_inner());
@@ -196,6 +210,16 @@ impl Metrics {
     }
 
     fn write(&self, text: &mut String) {
+        let _ = writeln!(
+            text,
+            "# HELP covec_jobs_quarantined Unreadable job records moved to quarantine at start.\n# TYPE covec_jobs_quarantined gauge\ncovec_jobs_quarantined {}",
+            self.quarantined.load(Ordering::Relaxed)
+        );
+        let _ = writeln!(
+            text,
+            "# HELP covec_orphans_swept_total Job directories without a job removed.\n# TYPE covec_orphans_swept_total counter\ncovec_orphans_swept_total {}",
+            self.orphans_swept.load(Ordering::Relaxed)
+        );
         let jobs = self.jobs.lock().unwrap_or_else(|p| p.into_inner());
         let _ = writeln!(
             text,

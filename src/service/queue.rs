@@ -22,10 +22,14 @@ use tracing::{info, info_span, warn};
 use super::error::ApiError;
 use super::model::{CancelReason, JobRecord, ProgressView, Status, now_ms};
 use super::ops::Metrics;
-use super::store::{Store, StoreError};
+use super::store::{Store, StoreError, digest};
 use super::submit::{InputLimits, decode_inputs, input_error};
 use crate::pipeline::{self, Observer, Progress};
 use crate::render::Image;
+
+/// Age after which a job directory without a job is swept while the server runs: far longer
+/// than a submission takes between writing its files and its record.
+pub const ORPHAN_AGE: Duration = Duration::from_secs(600);
 
 /// Queue and worker settings.
 #[derive(Clone, Debug)]
@@ -115,6 +119,9 @@ pub struct Queue {
     runners: Mutex<Vec<JoinHandle<()>>>,
 }
 
+/// A page of a listing: each job with its queue position while queued.
+pub type Page = Vec<(JobRecord, Option<usize>)>;
+
 /// What admitting a submission did.
 pub enum Admission {
     Created(Arc<JobEntry>),
@@ -156,7 +163,9 @@ impl Queue {
             running: 0,
             draining: false,
         };
-        for mut record in store.load_all()? {
+        let recovered = store.recover()?;
+        metrics.set_quarantined(recovered.quarantined.len());
+        for mut record in recovered.records {
             if !record.status.is_terminal() {
                 info!(job_id = %record.id, "re-queued after restart");
                 record.status = Status::Queued;
@@ -187,6 +196,11 @@ impl Queue {
             runners_alive: AtomicUsize::new(0),
             runners: Mutex::new(Vec::new()),
         });
+        // Nothing is being admitted yet: every directory without a record is an orphan.
+        let swept = queue.sweep_orphans(Duration::ZERO);
+        if swept > 0 {
+            info!(swept, "orphaned job directories removed at start");
+        }
         for index in 0..workers {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads_per_job)
@@ -243,33 +257,32 @@ impl Queue {
             .position(|queued| queued == id)
     }
 
-    /// A page of `owner`'s jobs, newest first, strictly older than `before`.
+    /// A page of `owner`'s jobs, newest first, strictly older than `before`, and whether more
+    /// follow. The page comes from the store's index; the queue lock is held only to look up
+    /// the page's own jobs. Blocking: call it off the async workers.
     pub fn list(
         &self,
         owner: &Option<String>,
         status: Option<Status>,
         before: Option<&str>,
         limit: usize,
-    ) -> (Vec<(JobRecord, Option<usize>)>, bool) {
+    ) -> Result<(Page, bool), StoreError> {
+        let mut ids = self.store.list_ids(owner, status, before, limit + 1)?;
+        let more = ids.len() > limit;
+        ids.truncate(limit);
         let state = lock(&self.state);
-        let mut matching = state
-            .jobs
-            .values()
-            .rev()
-            .filter(|entry| before.is_none_or(|before| entry.id.as_str() < before))
-            .filter(|entry| &entry.owner == owner)
+        let page = ids
+            .iter()
+            .filter_map(|id| state.jobs.get(id))
             .map(|entry| entry.snapshot())
-            .filter(|record| status.is_none_or(|status| record.status == status));
-        let page: Vec<_> = matching
-            .by_ref()
-            .take(limit)
+            // The live state wins over a stored status a failed write left behind.
+            .filter(|record| status.is_none_or(|status| record.status == status))
             .map(|record| {
                 let position = state.pending.iter().position(|queued| *queued == record.id);
                 (record, position)
             })
             .collect();
-        let more = matching.next().is_some();
-        (page, more)
+        Ok((page, more))
     }
 
     /// The earlier job for this Idempotency-Key, if any: `Ok` when the request matches it.
@@ -329,9 +342,10 @@ impl Queue {
     ) -> Result<Admission, ApiError> {
         let id = record.id.clone();
         for (name, bytes) in &inputs {
-            self.store
-                .write_artefact(&id, name, bytes)
-                .map_err(ApiError::from)?;
+            if let Err(error) = self.store.write_artefact(&id, name, bytes) {
+                let _ = self.store.remove_artefacts(&id);
+                return Err(error.into());
+            }
         }
         let mut state = lock(&self.state);
         let refuse = |state: MutexGuard<'_, State>, error: ApiError| {
@@ -396,10 +410,16 @@ impl Queue {
         Ok(false)
     }
 
-    /// Deletes a job's record and files; a running job is stopped first.
+    /// Deletes a job: its record for good, then its files. The tombstone comes first: if it
+    /// cannot be written nothing has changed (the job stays, whole); once it is, no later
+    /// write brings the job back. A running job is stopped and its runner removes the files
+    /// when it stops (removing them here would race the files it is still writing); files
+    /// that cannot be removed are left to the orphan sweep.
     pub fn delete(&self, entry: &JobEntry) -> Result<(), ApiError> {
+        self.store.tombstone(&entry.id)?;
         let mut state = lock(&self.state);
         entry.deleted.store(true, Ordering::SeqCst);
+        let running = entry.record.borrow().status == Status::Running;
         entry.request_cancel(CancelReason::User);
         state.pending.retain(|queued| *queued != entry.id);
         state.jobs.remove(&entry.id);
@@ -409,11 +429,26 @@ impl Queue {
                 .remove(&(entry.owner.clone(), idempotency.key.clone()));
         }
         drop(state);
-        self.store.delete(&entry.id).map_err(ApiError::from)?;
-        // A runner still working on the job removes its files again when it stops.
-        self.store
-            .remove_artefacts(&entry.id)
-            .map_err(ApiError::from)
+        if !running {
+            self.remove_deleted_files(&entry.id);
+        }
+        Ok(())
+    }
+
+    fn remove_deleted_files(&self, id: &str) {
+        if let Err(error) = self.store.remove_artefacts(id) {
+            warn!(job_id = %id, "removing a deleted job's files (left to the sweep): {error}");
+        }
+    }
+
+    /// Removes job directories no job owns that are older than `min_age` (see
+    /// [`Store::sweep_orphans`]); returns how many.
+    pub fn sweep_orphans(&self, min_age: Duration) -> usize {
+        let removed = self
+            .store
+            .sweep_orphans(min_age, |id| lock(&self.state).jobs.contains_key(id));
+        self.metrics.orphans_swept(removed);
+        removed
     }
 
     /// Removes the results of jobs whose retention has passed; returns how many.
@@ -497,7 +532,16 @@ impl Queue {
             });
             drop(state);
             self.run_job(&entry, pool);
-            lock(&self.state).running -= 1;
+            // Under the lock `delete` reads the status with: either it saw the job running and
+            // the files are removed here, or it saw the job ended and removed them itself.
+            let deleted = {
+                let mut state = lock(&self.state);
+                state.running -= 1;
+                entry.deleted.load(Ordering::SeqCst)
+            };
+            if deleted {
+                self.remove_deleted_files(&entry.id);
+            }
             self.changed.notify_all();
         }
         self.runners_alive.fetch_sub(1, Ordering::SeqCst);
@@ -512,8 +556,6 @@ impl Queue {
         info!("started");
         let outcome = self.execute(entry, pool);
         if entry.deleted.load(Ordering::SeqCst) {
-            let _ = self.store.remove_artefacts(&entry.id);
-            let _ = self.store.delete(&entry.id);
             info!("deleted while running");
             return;
         }
@@ -619,6 +661,7 @@ impl Queue {
                 &masks,
                 labels.as_deref(),
                 &self.limits,
+                record.inputs.accept_truncated,
             )
         })();
         let inputs = match inputs {
@@ -641,7 +684,7 @@ impl Queue {
         }));
         deadline.abort();
         match result {
-            Ok(Ok(output)) => match self.write_results(&entry.id, &output) {
+            Ok(Ok(output)) => match self.write_results(entry, &output) {
                 Ok(()) => Outcome::Succeeded(output.mode.into()),
                 Err(error) => Outcome::Failed(ApiError::from(error)),
             },
@@ -671,13 +714,37 @@ impl Queue {
         }
     }
 
-    /// The run's files, in [`pipeline::Output::artefacts`] order (`result.svg` last).
-    fn write_results(&self, id: &str, output: &pipeline::Output) -> Result<(), StoreError> {
+    /// The run's files, in [`pipeline::Output::artefacts`] order (`result.svg` last), with
+    /// their digests in the record (saved when the job is marked succeeded).
+    fn write_results(&self, entry: &JobEntry, output: &pipeline::Output) -> Result<(), StoreError> {
+        let mut checksums = BTreeMap::new();
         for artefact in output.artefacts() {
+            let name = artefact.kind.name();
             self.store
-                .write_artefact(id, &artefact.kind.name(), &artefact.bytes)?;
+                .write_artefact(&entry.id, &name, &artefact.bytes)?;
+            checksums.insert(name, digest(&artefact.bytes));
         }
+        entry
+            .record
+            .send_modify(|record| record.checksums = checksums);
         Ok(())
+    }
+
+    /// A stored file of a job, checked against the digest recorded when it was written (a
+    /// result cut short or altered on disk is an error, never served as if whole).
+    pub fn read_result(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>, ApiError> {
+        let expected = lock(&self.state)
+            .jobs
+            .get(id)
+            .and_then(|entry| entry.record.borrow().checksums.get(name).cloned());
+        let bytes = self.store.read_artefact(id, name)?;
+        if let (Some(bytes), Some(expected)) = (&bytes, expected)
+            && digest(bytes) != expected
+        {
+            tracing::error!(job_id = %id, name, "a stored result does not match its digest");
+            return Err(ApiError::CorruptResult(name.to_owned()));
+        }
+        Ok(bytes)
     }
 }
 

@@ -55,7 +55,7 @@ pub(super) async fn scene_file(
     .await
 }
 
-/// Reads a stored artefact off the async workers.
+/// Reads a stored artefact off the async workers (checked against its recorded digest).
 pub(super) async fn artefact(
     state: &AppState,
     id: &str,
@@ -65,14 +65,10 @@ pub(super) async fn artefact(
     let queue = state.queue.clone();
     let job = id.to_owned();
     let bytes = tokio::task::spawn_blocking(move || {
-        queue
-            .store()
-            .read_artefact(&job, &name)
-            .map(|bytes| (name, bytes))
+        queue.read_result(&job, &name).map(|bytes| (name, bytes))
     })
     .await
-    .map_err(|error| ApiError::Internal(error.to_string()))?
-    .map_err(ApiError::from)?;
+    .map_err(|error| ApiError::Internal(error.to_string()))??;
     match bytes {
         (_, Some(bytes)) => Ok(([(header::CONTENT_TYPE, media_type)], bytes).into_response()),
         (name, None) => Err(ApiError::ResultNotFound(name)),
@@ -174,8 +170,7 @@ fn parse_width(text: &str) -> Result<u32, ApiError> {
 pub(super) fn stored_scene(queue: &Queue, job: &str, prefix: &str) -> Result<Scene, ApiError> {
     let name = format!("{prefix}{}", FileKind::SceneJson.name());
     let bytes = queue
-        .store()
-        .read_artefact(job, &name)?
+        .read_result(job, &name)?
         .ok_or(ApiError::ResultNotFound(name))?;
     serde_json::from_slice(&bytes).map_err(|e| ApiError::Internal(format!("stored scene: {e}")))
 }

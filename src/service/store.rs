@@ -13,11 +13,13 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
+use std::time::Duration;
 
 use rusqlite::{Connection, params};
+use sha2::{Digest, Sha256};
 
 use super::error::ApiError;
-use super::model::JobRecord;
+use super::model::{JobRecord, Status, is_job_id, now_ms};
 
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
@@ -28,11 +30,8 @@ pub enum StoreError {
     },
     #[error("job database: {0}")]
     Sqlite(#[from] rusqlite::Error),
-    #[error("job record {id} is corrupt: {source}")]
-    CorruptRecord {
-        id: String,
-        source: serde_json::Error,
-    },
+    #[error("job record {id} is corrupt: {reason}")]
+    CorruptRecord { id: String, reason: String },
 }
 
 impl StoreError {
@@ -64,22 +63,57 @@ fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
 pub struct Store {
     root: PathBuf,
     db: Mutex<Connection>,
+    reader: Mutex<Connection>,
+}
+
+/// What [`Store::recover`] found.
+pub struct Recovered {
+    /// Every readable record, oldest first.
+    pub records: Vec<JobRecord>,
+    /// Ids of rows that could not be read, moved to the `quarantine` table.
+    pub quarantined: Vec<String>,
 }
 
 impl Store {
-    /// Opens (creating if needed) the data directory and its database.
+    /// Opens (creating if needed) the data directory and its database, adding the listing
+    /// columns and indexes to a database written before they existed.
     pub fn open(root: &Path) -> Result<Self, StoreError> {
         fs::create_dir_all(root.join("jobs")).map_err(io_error(root))?;
-        let db = Connection::open(root.join("jobs.sqlite3"))?;
+        let path = root.join("jobs.sqlite3");
+        let db = Connection::open(&path)?;
         // WAL: readers never block the writer; NORMAL sync is durable across process crashes.
         db.pragma_update(None, "journal_mode", "WAL")?;
         db.pragma_update(None, "synchronous", "NORMAL")?;
         db.execute_batch(
-            "CREATE TABLE IF NOT EXISTS jobs (id TEXT PRIMARY KEY, record TEXT NOT NULL)",
+            "CREATE TABLE IF NOT EXISTS jobs (id TEXT PRIMARY KEY, record TEXT NOT NULL);
+             CREATE TABLE IF NOT EXISTS quarantine (
+                 id TEXT PRIMARY KEY, record TEXT NOT NULL, reason TEXT NOT NULL, at INTEGER NOT NULL
+             );",
         )?;
+        let columns: Vec<String> = db
+            .prepare("SELECT name FROM pragma_table_info('jobs')")?
+            .query_map([], |row| row.get(0))?
+            .collect::<Result<_, _>>()?;
+        for (column, kind) in [
+            ("owner", "TEXT"),
+            ("status", "TEXT"),
+            ("deleted", "INTEGER NOT NULL DEFAULT 0"),
+        ] {
+            if !columns.iter().any(|name| name == column) {
+                db.execute_batch(&format!("ALTER TABLE jobs ADD COLUMN {column} {kind}"))?;
+            }
+        }
+        db.execute_batch(
+            "CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs (owner, id);
+             CREATE INDEX IF NOT EXISTS jobs_by_owner_status ON jobs (owner, status, id);",
+        )?;
+        // Listing reads on its own connection, so a page never waits for a worker's write
+        // (rusqlite's connections wait up to 5 s for a lock held by the other).
+        let reader = Connection::open(&path)?;
         Ok(Self {
             root: root.to_owned(),
             db: Mutex::new(db),
+            reader: Mutex::new(reader),
         })
     }
 
@@ -89,34 +123,155 @@ impl Store {
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
+    /// Writes a job's record, unless the job was deleted: a tombstone is final, so a worker
+    /// finishing or a cancel racing a DELETE cannot bring the record back.
     pub fn save(&self, record: &JobRecord) -> Result<(), StoreError> {
         let json = serde_json::to_string(record).expect("a job record always serialises");
         self.db().execute(
-            "INSERT INTO jobs (id, record) VALUES (?1, ?2) ON CONFLICT(id) DO UPDATE SET record = excluded.record",
-            params![record.id, json],
+            "INSERT INTO jobs (id, owner, status, record) VALUES (?1, ?2, ?3, ?4)
+             ON CONFLICT(id) DO UPDATE SET owner = excluded.owner, status = excluded.status,
+                 record = excluded.record
+             WHERE jobs.deleted = 0",
+            params![record.id, record.owner, record.status.name(), json],
         )?;
         Ok(())
     }
 
-    pub fn delete(&self, id: &str) -> Result<(), StoreError> {
+    /// Marks a job deleted for good (its row goes at the next start, when no one can still be
+    /// writing it). The commit point of a DELETE: until it is written nothing else changes.
+    pub fn tombstone(&self, id: &str) -> Result<(), StoreError> {
         self.db()
-            .execute("DELETE FROM jobs WHERE id = ?1", params![id])?;
+            .execute("UPDATE jobs SET deleted = 1 WHERE id = ?1", params![id])?;
         Ok(())
     }
 
-    /// Every record, oldest first (ids sort by creation time).
-    pub fn load_all(&self) -> Result<Vec<JobRecord>, StoreError> {
-        let db = self.db();
-        let mut statement = db.prepare("SELECT id, record FROM jobs ORDER BY id")?;
-        let rows = statement.query_map([], |row| {
-            Ok((row.get::<_, String>(0)?, row.get::<_, String>(1)?))
-        })?;
-        let mut records = Vec::new();
-        for row in rows {
-            let (id, json) = row?;
-            records.push(parse_record(&id, &json)?);
+    /// At start: drops tombstones, moves unreadable rows to the `quarantine` table (logged;
+    /// the server starts without them) and returns every other record, oldest first.
+    pub fn recover(&self) -> Result<Recovered, StoreError> {
+        let connection = self.db();
+        // One transaction: a backfill of many rows is one commit, not one each.
+        let db = connection.unchecked_transaction()?;
+        db.execute("DELETE FROM jobs WHERE deleted = 1", [])?;
+        // Rows from before the listing columns: filled in one statement (the loop below
+        // quarantines those that are not JSON).
+        db.execute(
+            "UPDATE jobs SET owner = json_extract(record, '$.owner'),
+                 status = json_extract(record, '$.status')
+             WHERE status IS NULL AND json_valid(record)",
+            [],
+        )?;
+        let rows: Vec<(String, String, Option<String>)> = db
+            .prepare("SELECT id, record, status FROM jobs ORDER BY id")?
+            .query_map([], |row| Ok((row.get(0)?, row.get(1)?, row.get(2)?)))?
+            .collect::<Result<_, _>>()?;
+        let mut recovered = Recovered {
+            records: Vec::with_capacity(rows.len()),
+            quarantined: Vec::new(),
+        };
+        for (id, json, status) in rows {
+            match parse_record(&id, &json) {
+                Ok(record) => {
+                    if status.as_deref() != Some(record.status.name()) {
+                        // The columns disagree with the record (a hand-edited row).
+                        db.execute(
+                            "UPDATE jobs SET owner = ?2, status = ?3 WHERE id = ?1",
+                            params![id, record.owner, record.status.name()],
+                        )?;
+                    }
+                    recovered.records.push(record);
+                }
+                Err(error) => {
+                    tracing::error!(job_id = %id, %error, "unreadable job record quarantined");
+                    db.execute(
+                        "INSERT OR REPLACE INTO quarantine (id, record, reason, at)
+                         VALUES (?1, ?2, ?3, ?4)",
+                        params![id, json, error.to_string(), now_ms() as i64],
+                    )?;
+                    db.execute("DELETE FROM jobs WHERE id = ?1", params![id])?;
+                    recovered.quarantined.push(id);
+                }
+            }
         }
-        Ok(records)
+        db.commit()?;
+        Ok(recovered)
+    }
+
+    /// Up to `limit` ids of `owner`'s jobs (with `status` if given) strictly older than
+    /// `before`, newest first; one index range scan.
+    pub fn list_ids(
+        &self,
+        owner: &Option<String>,
+        status: Option<Status>,
+        before: Option<&str>,
+        limit: usize,
+    ) -> Result<Vec<String>, StoreError> {
+        // Ids are `job_<hex>`: every one sorts before "k".
+        let before = before.unwrap_or("k");
+        let reader = self
+            .reader
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let ids = match status {
+            Some(status) => reader
+                .prepare_cached(
+                    "SELECT id FROM jobs INDEXED BY jobs_by_owner_status
+                     WHERE owner IS ?1 AND status = ?2 AND id < ?3 AND deleted = 0
+                     ORDER BY id DESC LIMIT ?4",
+                )?
+                .query_map(params![owner, status.name(), before, limit as i64], |row| {
+                    row.get(0)
+                })?
+                .collect::<Result<_, _>>()?,
+            None => reader
+                .prepare_cached(
+                    "SELECT id FROM jobs INDEXED BY jobs_by_owner
+                     WHERE owner IS ?1 AND id < ?2 AND deleted = 0
+                     ORDER BY id DESC LIMIT ?3",
+                )?
+                .query_map(params![owner, before, limit as i64], |row| row.get(0))?
+                .collect::<Result<_, _>>()?,
+        };
+        Ok(ids)
+    }
+
+    /// Whether a live or quarantined record exists for `id` (what the orphan sweep keeps).
+    fn has_record(&self, id: &str) -> Result<bool, StoreError> {
+        Ok(self.db().query_row(
+            "SELECT EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND deleted = 0)
+                 OR EXISTS (SELECT 1 FROM quarantine WHERE id = ?1)",
+            params![id],
+            |row| row.get(0),
+        )?)
+    }
+
+    /// Removes job directories that no record owns (an upload interrupted by a crash, a refused
+    /// submission whose clean-up failed, a deleted job whose files could not be removed then)
+    /// and that were last changed more than `min_age` ago: a submission being admitted writes
+    /// its files before its record. `keep` says whether a directory is a live job's.
+    /// Returns how many were removed.
+    pub fn sweep_orphans(&self, min_age: Duration, keep: impl Fn(&str) -> bool) -> usize {
+        let jobs = self.root.join("jobs");
+        let Ok(entries) = fs::read_dir(&jobs) else {
+            return 0;
+        };
+        let mut removed = 0;
+        for entry in entries.flatten() {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            let old_enough = entry
+                .metadata()
+                .and_then(|metadata| metadata.modified())
+                .is_ok_and(|modified| modified.elapsed().is_ok_and(|age| age >= min_age));
+            if !old_enough || keep(&name) || !matches!(self.has_record(&name), Ok(false)) {
+                continue;
+            }
+            match fs::remove_dir_all(entry.path()) {
+                Ok(()) => removed += 1,
+                Err(error) => {
+                    tracing::warn!(dir = %name, %error, "removing an orphaned job directory")
+                }
+            }
+        }
+        removed
     }
 
     pub fn job_dir(&self, id: &str) -> PathBuf {
@@ -136,6 +291,12 @@ impl Store {
             Err(error) if error.kind() == std::io::ErrorKind::NotFound => Ok(None),
             Err(error) => Err(io_error(&path)(error)),
         }
+    }
+
+    /// Whether `jobs/<id>/<name>` exists, without reading it.
+    pub fn has_artefact(&self, id: &str, name: &str) -> Result<bool, StoreError> {
+        let path = self.job_dir(id).join(name);
+        path.try_exists().map_err(io_error(&path))
     }
 
     /// Removes every file of a job; missing files are not an error.
@@ -181,11 +342,23 @@ impl Store {
     }
 }
 
+/// A stored record, if it parses and is the record of the row it is in.
 fn parse_record(id: &str, json: &str) -> Result<JobRecord, StoreError> {
-    serde_json::from_str(json).map_err(|source| StoreError::CorruptRecord {
+    let corrupt = |reason: String| StoreError::CorruptRecord {
         id: id.to_owned(),
-        source,
-    })
+        reason,
+    };
+    let record: JobRecord =
+        serde_json::from_str(json).map_err(|error| corrupt(error.to_string()))?;
+    if record.id != id || !is_job_id(id) {
+        return Err(corrupt(format!("it holds the record of `{}`", record.id)));
+    }
+    Ok(record)
+}
+
+/// SHA-256 of a stored file in hex, recorded when it is written and checked when it is served.
+pub fn digest(bytes: &[u8]) -> String {
+    super::submit::hex(&Sha256::digest(bytes))
 }
 
 /// Temporary file in the same directory, fsync, rename over the target.

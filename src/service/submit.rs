@@ -35,10 +35,14 @@ pub struct InputLimits {
     /// masks at 1, a label map as decoded), counted as they decode. Default 256 MiB: 256 masks
     /// of 4000² would otherwise hold 4 GB.
     pub max_decoded_bytes: u64,
-    /// Requests that decode their inputs at once; others wait their turn. Default 2: with the
-    /// decoded budget this bounds the memory decoding can take.
+    /// Requests that decode their inputs at once; others wait their turn, up to
+    /// [`DECODE_WAIT`], then get 503 `decode-busy`. Default 2: with the decoded budget this
+    /// bounds the memory decoding can take.
     pub decode_slots: usize,
 }
+
+/// Longest wait for a decode slot before a request is refused with 503 `decode-busy`.
+pub const DECODE_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
 
 impl InputLimits {
     /// The parameter ranges these limits allow.
@@ -50,11 +54,12 @@ impl InputLimits {
         }
     }
 
-    /// The decoder limits these limits imply.
-    pub fn decoding(&self) -> imageio::Limits {
+    /// The decoder limits these limits imply; `accept_truncated` is the client's choice.
+    pub fn decoding(&self, accept_truncated: bool) -> imageio::Limits {
         imageio::Limits {
             max_pixels: self.max_pixels,
             max_masks: self.max_masks,
+            accept_truncated,
         }
     }
 }
@@ -103,25 +108,7 @@ pub async fn read(request: Request, limits: &InputLimits) -> Result<Submission, 
         .and_then(|value| value.to_str().ok())
         .unwrap_or("")
         .to_owned();
-    let declared_length = request
-        .headers()
-        .get(header::CONTENT_LENGTH)
-        .and_then(|value| value.to_str().ok())
-        .and_then(|value| value.parse::<u64>().ok());
-    if let Some(length) = declared_length
-        && length > limits.max_body_bytes
-    {
-        // Read (and drop) a body up to twice the limit before answering: closing a connection
-        // with unread data makes the kernel reset it, and the client may lose the 413.
-        // Anything larger is cut off at once.
-        if length <= limits.max_body_bytes.saturating_mul(2) {
-            let mut body = request.into_body();
-            while let Some(Ok(_)) = body.frame().await {}
-        }
-        return Err(ApiError::BodyTooLarge {
-            limit: limits.max_body_bytes,
-        });
-    }
+    let request = refuse_declared_over(request, limits.max_body_bytes).await?;
     let media_type = content_type
         .split(';')
         .next()
@@ -197,21 +184,47 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
     })
 }
 
-async fn read_json(request: Request, limits: &InputLimits) -> Result<Submission, ApiError> {
-    let body = axum::body::to_bytes(request.into_body(), limits.max_body_bytes as usize)
+/// 413 for a request whose declared `Content-Length` is over `limit`, before reading it.
+async fn refuse_declared_over(request: Request, limit: u64) -> Result<Request, ApiError> {
+    let declared_length = request
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|value| value.to_str().ok())
+        .and_then(|value| value.parse::<u64>().ok());
+    if let Some(length) = declared_length
+        && length > limit
+    {
+        // Read (and drop) a body up to twice the limit before answering: closing a connection
+        // with unread data makes the kernel reset it, and the client may lose the 413.
+        // Anything larger is cut off at once.
+        if length <= limit.saturating_mul(2) {
+            let mut body = request.into_body();
+            while let Some(Ok(_)) = body.frame().await {}
+        }
+        return Err(ApiError::BodyTooLarge { limit });
+    }
+    Ok(request)
+}
+
+/// A whole request body of at most `limit` bytes: 413 beyond it, 400 when it cannot be read.
+pub(super) async fn read_body(request: Request, limit: u64) -> Result<Bytes, ApiError> {
+    let request = refuse_declared_over(request, limit).await?;
+    axum::body::to_bytes(request.into_body(), limit as usize)
         .await
         .map_err(|error| {
             let over_limit = std::error::Error::source(&error)
                 .is_some_and(|source| source.is::<http_body_util::LengthLimitError>())
                 || error.into_inner().is::<http_body_util::LengthLimitError>();
             if over_limit {
-                ApiError::BodyTooLarge {
-                    limit: limits.max_body_bytes,
-                }
+                ApiError::BodyTooLarge { limit }
             } else {
                 ApiError::BadRequest("the request body could not be read".into())
             }
-        })?;
+        })
+}
+
+async fn read_json(request: Request, limits: &InputLimits) -> Result<Submission, ApiError> {
+    let body = read_body(request, limits.max_body_bytes).await?;
     let json: JsonSubmission = serde_json::from_slice(&body)
         .map_err(|error| ApiError::BadRequest(format!("JSON body: {error}")))?;
     if json.masks.len() > limits.max_masks {
@@ -310,19 +323,21 @@ pub fn hex(bytes: &[u8]) -> String {
 }
 
 /// Decodes and cross-checks the inputs of a job (CPU work: call off the async runtime).
+/// `accept_truncated`: the client's `accept_truncated` (a JPEG cut short is refused without).
 pub fn decode_inputs(
     image: &[u8],
     albedo: Option<&[u8]>,
     masks: &[Bytes],
     labels: Option<&[u8]>,
     limits: &InputLimits,
+    accept_truncated: bool,
 ) -> Result<Inputs, ApiError> {
     if !masks.is_empty() && labels.is_some() {
         return Err(ApiError::InvalidInput(
             "send either `mask` fields or one `labels` map, not both".into(),
         ));
     }
-    let decode_limits = limits.decoding();
+    let decode_limits = limits.decoding(accept_truncated);
     let mut decoded = 0u64;
     let mut count = |bytes: usize| {
         decoded += bytes as u64;
@@ -384,6 +399,8 @@ pub(super) fn input_error(what: &'static str) -> impl Fn(imageio::InputError) ->
             limit: max as u64,
             actual: count as u64,
         },
+        imageio::InputError::TooManyLabels { max } => ApiError::TooManyLabels { limit: max as u64 },
+        imageio::InputError::Truncated => ApiError::TruncatedImage(what),
         aspect @ imageio::InputError::AspectRatio { .. } => {
             ApiError::InvalidInput(aspect.to_string())
         }
