@@ -67,6 +67,8 @@ pub enum ApiError {
     InvalidParams(String),
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    #[error("webhooks to `{0}` are not allowed by this server")]
+    WebhookHostNotAllowed(String),
     #[error("this Idempotency-Key was used with a different request")]
     IdempotencyMismatch,
     #[error("the job queue is full ({0} jobs); retry later")]
@@ -98,9 +100,11 @@ impl ApiError {
             | TooManyPixels { .. }
             | TooManyMasks { .. }
             | InputsTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
-            UndecodableImage(..) | InvalidParams(_) | InvalidInput(_) | IdempotencyMismatch => {
-                StatusCode::UNPROCESSABLE_ENTITY
-            }
+            UndecodableImage(..)
+            | InvalidParams(_)
+            | InvalidInput(_)
+            | WebhookHostNotAllowed(_)
+            | IdempotencyMismatch => StatusCode::UNPROCESSABLE_ENTITY,
             QueueFull(..) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             NotReady(..) => StatusCode::CONFLICT,
             DataRemoved(_) => StatusCode::GONE,
@@ -129,6 +133,7 @@ impl ApiError {
             UndecodableImage(..) => "undecodable-image",
             InvalidParams(_) => "invalid-params",
             InvalidInput(_) => "invalid-input",
+            WebhookHostNotAllowed(_) => "webhook-host-not-allowed",
             IdempotencyMismatch => "idempotency-key-reused",
             QueueFull(..) => "queue-full",
             ShuttingDown => "shutting-down",

@@ -80,8 +80,11 @@ async fn create(
     if key.is_none() {
         state.queue.check_capacity()?;
     }
-    let submission = submit::read(request, &state.limits).await?;
+    let mut submission = submit::read(request, &state.limits).await?;
     let fingerprint = submission.fingerprint();
+    let webhook = state
+        .webhooks
+        .target(std::mem::take(&mut submission.webhook))?;
     if let Some(key) = &key {
         if let Some(earlier) = state.queue.find_idempotent(&owner.0, key, &fingerprint)? {
             return Ok(created(&state, &earlier, true));
@@ -152,6 +155,7 @@ async fn create(
         error: None,
         idempotency: key.map(|key| Idempotency { key, fingerprint }),
         data_removed: false,
+        webhook,
     };
     let queue = state.queue.clone();
     let admission = tokio::task::spawn_blocking(move || queue.admit(record, inputs))
@@ -160,6 +164,7 @@ async fn create(
     let (entry, replayed) = match admission {
         Admission::Created(entry) => {
             tracing::info!("job created");
+            state.webhooks.follow(entry.clone());
             (entry, false)
         }
         Admission::Replayed(entry) => (entry, true),
