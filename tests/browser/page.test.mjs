@@ -129,11 +129,11 @@ async function freePort() {
   });
 }
 
-async function startServer(binary) {
+async function startServer(binary, extraFlags = []) {
   const port = await freePort();
   const dataDir = fs.mkdtempSync(path.join(os.tmpdir(), "covec-web-test-data-"));
   const log = fs.openSync(path.join(args.artifacts, "server.log"), "w");
-  const flags = ["--addr", `127.0.0.1:${port}`, "--data-dir", dataDir, "--workers", "1", "--max-body-bytes", `${MAX_BODY_BYTES}`, "--max-iterations", `${MAX_ITERATIONS}`];
+  const flags = ["--addr", `127.0.0.1:${port}`, "--data-dir", dataDir, "--workers", "1", "--max-body-bytes", `${MAX_BODY_BYTES}`, "--max-iterations", `${MAX_ITERATIONS}`, ...extraFlags];
   const child = spawn(binary, ["serve", ...flags], {
     stdio: ["ignore", log, log],
     // Only the flags configure it: no API keys or limits from the caller's environment.
@@ -171,8 +171,8 @@ async function startServer(binary) {
   };
 }
 
-async function apiBytes(base, url) {
-  const response = await fetch(new URL(url, base));
+async function apiBytes(base, url, headers = {}) {
+  const response = await fetch(new URL(url, base), { headers });
   check(response.ok, `GET ${url}: ${response.status}`);
   return Buffer.from(await response.arrayBuffer());
 }
@@ -681,6 +681,58 @@ async function run(context, base) {
   await step("no script errors or blocked resources", async () => {
     check(problems.length === 0, problems.join("\n"));
   });
+
+  if (args.covec) {
+    await step("the page works against a server started with --api-keys", async () => {
+      const key = "browser-test-key";
+      const keyed = await startServer(path.resolve(args.covec), ["--api-keys", key]);
+      const other = await context.newPage();
+      const errors = [];
+      other.on("pageerror", (error) => errors.push(`page error: ${error.message}`));
+      try {
+        await other.goto(keyed.url, { waitUntil: "load" });
+        const fill = async () => {
+          await other.setInputFiles("#image", FIXTURE);
+          await other.fill("#paths", JOB.paths);
+          await other.click("#advanced > summary");
+          await other.fill("#max-size", JOB.maxSize);
+          for (const [name, value] of Object.entries(JOB.iterations)) await other.fill(`#it-${name}`, value);
+        };
+        // Without the key the server's refusal is shown.
+        await fill();
+        await other.click("#submit");
+        await other.waitForSelector("#form-error:not([hidden])", { timeout: 10_000 });
+        const refusal = await other.locator("#form-error").textContent();
+        check(/Authorization|key/i.test(refusal), `message without a key: ${refusal}`);
+        // With it: the stream, previews, result and downloads all carry it.
+        await other.fill("#api-key", key);
+        await other.click("#submit");
+        await other.waitForSelector("body[data-state=succeeded] #svg-host > svg", { timeout: JOB_TIMEOUT_MS });
+        await other.waitForFunction(() => {
+          const images = Array.from(document.querySelectorAll("#previews img"));
+          return images.length > 0 && images.every((img) => img.complete && img.naturalWidth > 0 && img.src.startsWith("blob:"));
+        }, null, { timeout: 10_000 });
+        const stage = await other.locator("#stage-name").textContent();
+        check(stage === "Done", `stage line: ${stage}`);
+        const url = await other.locator("#svg-host").getAttribute("data-svg-url");
+        const [download] = await Promise.all([
+          other.waitForEvent("download"),
+          other.locator("#downloads a", { hasText: /^Layered SVG$/ }).click(),
+        ]);
+        const bytes = fs.readFileSync(await download.path());
+        const served = await apiBytes(keyed.url, url, { authorization: `Bearer ${key}` });
+        check(bytes.equals(served), `keyed download: ${bytes.length} bytes, the API serves ${served.length}`);
+        // The key stays for the tab (sessionStorage), not in the page's URL or cookies.
+        await other.reload({ waitUntil: "load" });
+        check((await other.inputValue("#api-key")) === key, "the key was not kept for the tab");
+        facts.keyed = { session_storage_items: await other.evaluate(() => sessionStorage.length), download_bytes: bytes.length };
+        check(errors.length === 0, errors.join("\n"));
+      } finally {
+        await other.close();
+        await keyed.stop();
+      }
+    });
+  }
 }
 
 await main();
