@@ -678,6 +678,67 @@ async function run(context, base) {
     await screenshot("canceled");
   });
 
+  await step("a dropped image with an albedo map and masks is sent and vectorised", async () => {
+    for (const [key, value] of Object.entries(JOB.iterations)) await page.fill(`#it-${key}`, value);
+    const png = fs.readFileSync(FIXTURE);
+    const size = { width: png.readUInt32BE(16), height: png.readUInt32BE(20) };
+    // Drop the image on the drop zone, as a person dragging a file would.
+    await page.evaluate(({ b64 }) => {
+      const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+      const data = new DataTransfer();
+      data.items.add(new File([bytes], "dropped.png", { type: "image/png" }));
+      const zone = document.getElementById("drop");
+      for (const type of ["dragenter", "dragover", "drop"]) {
+        zone.dispatchEvent(new DragEvent(type, { dataTransfer: data, bubbles: true, cancelable: true }));
+      }
+    }, { b64: png.toString("base64") });
+    check((await page.evaluate(() => document.getElementById("image").files[0]?.name)) === "dropped.png", "the drop did not choose the file");
+    await page.waitForFunction(() => {
+      const chosen = document.getElementById("chosen");
+      return !chosen.hidden && chosen.complete && chosen.naturalWidth > 0;
+    });
+    // The image itself as the albedo map, and two binary masks (left and right halves).
+    await page.setInputFiles("#albedo", FIXTURE);
+    await page.evaluate(async ({ width, height }) => {
+      const data = new DataTransfer();
+      for (const [index, x] of [[0, 0], [1, Math.floor(width / 2)]]) {
+        const canvas = new OffscreenCanvas(width, height);
+        const context = canvas.getContext("2d");
+        context.fillStyle = "#000";
+        context.fillRect(0, 0, width, height);
+        context.fillStyle = "#fff";
+        context.fillRect(x, 0, Math.ceil(width / 2), height);
+        const blob = await canvas.convertToBlob({ type: "image/png" });
+        data.items.add(new File([blob], `mask-${index}.png`, { type: "image/png" }));
+      }
+      document.getElementById("masks").files = data.files;
+    }, size);
+    // What the page hands to fetch (a multipart body's files are not visible on the wire here).
+    await page.evaluate(() => {
+      const original = window.fetch;
+      window.fetch = (url, options) => {
+        if (options?.body instanceof FormData) {
+          window.sentFields = Array.from(options.body.entries(), ([name, value]) => [name, value.name ?? "", value.size ?? 0]);
+        }
+        return original(url, options);
+      };
+    });
+    const created = page.waitForResponse((r) => r.url().endsWith("/v1/jobs") && r.request().method() === "POST");
+    await page.click("#submit");
+    const sentFields = await page.evaluate(() => window.sentFields ?? []);
+    const fields = (name) => sentFields.filter(([field]) => field === name);
+    check(
+      fields("image").length === 1 && fields("albedo").length === 1 && fields("mask").length === 2,
+      `sent ${JSON.stringify(sentFields)}`,
+    );
+    check(fields("image")[0][1] === "dropped.png", `the image sent was ${fields("image")[0][1]}`);
+    const response = await created;
+    check(response.status() === 201, `POST /v1/jobs gave ${response.status()}: ${await response.text()}`);
+    await page.waitForSelector("body[data-state=succeeded] #svg-host > svg", { timeout: JOB_TIMEOUT_MS });
+    facts.dropped_with_masks = { job: (await response.json()).id, mask_size: size };
+    await screenshot("dropped-with-masks");
+  });
+
   await step("no script errors or blocked resources", async () => {
     check(problems.length === 0, problems.join("\n"));
   });
