@@ -1,5 +1,6 @@
 //! The `covec` subcommands: each one's arguments and logic live in its own module.
 
+pub mod batch;
 pub mod edit;
 pub mod eval;
 pub mod intrinsic;

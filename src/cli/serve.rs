@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use clap::Args;
 
-use covec::service::{self, Config, ConnectionLimits, InputLimits, QueueConfig};
+use covec::service::{self, Config, ConnectionLimits, InputLimits, QueueConfig, WebhookConfig};
 
 /// Every option also reads an environment variable (shown in `--help`); flags win.
 #[derive(Args, Debug)]
@@ -86,6 +86,22 @@ pub struct ServeArgs {
     /// Longest `Prefer: wait=N` honoured on a submission, in seconds; 0 ignores it.
     #[arg(long, env = "COVEC_MAX_WAIT", default_value_t = Config::default().max_wait.as_secs())]
     max_wait: u64,
+    /// Webhook signing secret (Standard Webhooks `whsec_<base64>`); needed with webhook hosts.
+    #[arg(long, env = "COVEC_WEBHOOK_SECRET", hide_env_values = true)]
+    webhook_secret: Option<String>,
+    /// Hosts webhooks may be sent to, comma-separated (`*.example.com` for subdomains); none
+    /// (the default) refuses every webhook.
+    #[arg(long, env = "COVEC_WEBHOOK_HOSTS", value_delimiter = ',')]
+    webhook_hosts: Vec<String>,
+    /// Also allow webhooks to loopback addresses (for tests; never in production).
+    #[arg(long, env = "COVEC_WEBHOOK_ALLOW_LOOPBACK")]
+    webhook_allow_loopback: bool,
+    /// Attempts per webhook event, the first included.
+    #[arg(long, env = "COVEC_WEBHOOK_ATTEMPTS", default_value_t = WebhookConfig::default().max_attempts)]
+    webhook_attempts: u32,
+    /// Seconds before the first webhook retry; each later retry waits twice as long.
+    #[arg(long, env = "COVEC_WEBHOOK_FIRST_RETRY", default_value_t = WebhookConfig::default().first_retry.as_secs())]
+    webhook_first_retry: u64,
 }
 
 impl ServeArgs {
@@ -128,6 +144,18 @@ impl ServeArgs {
                 .collect(),
             shutdown_grace: Duration::from_secs(self.shutdown_grace),
             max_wait: Duration::from_secs(self.max_wait),
+            webhooks: WebhookConfig {
+                secret: self.webhook_secret.filter(|secret| !secret.is_empty()),
+                allowed_hosts: self
+                    .webhook_hosts
+                    .into_iter()
+                    .filter(|host| !host.is_empty())
+                    .collect(),
+                allow_loopback: self.webhook_allow_loopback,
+                max_attempts: self.webhook_attempts.max(1),
+                first_retry: Duration::from_secs(self.webhook_first_retry),
+                ..WebhookConfig::default()
+            },
         }
     }
 }

@@ -15,15 +15,28 @@ use covec::pipeline::{self, Inputs, Masks, Mode, Observer, Params, Progress};
 use covec::render::Image;
 use covec::svg::{self, SvgOptions};
 
-/// Vectorize an image into a layered SVG (albedo × shade + light).
-#[derive(ClapArgs, Debug)]
+/// Vectorize an image into a layered SVG (albedo × shade + light), or many images and
+/// directories into an output directory (`covec vectorize a.jpg b.png photos/ -o out/`).
+#[derive(ClapArgs, Clone, Debug)]
 pub struct Args {
-    /// The image: PNG, JPEG or WebP; 8 or 16 bit; grey, RGB or RGBA (alpha is composited over white).
-    pub input: PathBuf,
+    /// The image: PNG, JPEG or WebP; 8 or 16 bit; grey, RGB or RGBA (alpha is composited over
+    /// white). Several images, or directories (their image files, not recursively), make a
+    /// batch: each becomes `<name>.svg` and `<name>.json` in the output directory.
+    #[arg(required = true, value_name = "INPUT")]
+    pub inputs: Vec<PathBuf>,
     /// Where to write the layered SVG, or with a `.png` extension a PNG drawn by covec's own
-    /// renderer (see --width). Default: the input path with the extension `.svg`.
-    #[arg(short, long, value_name = "OUT.svg|OUT.png")]
+    /// renderer (see --width). Default: the input path with the extension `.svg`. For a batch:
+    /// the output directory (required; created if missing).
+    #[arg(short, long, value_name = "OUT.svg|OUT.png|DIR")]
     pub output: Option<PathBuf>,
+    /// Batch: pipeline threads in total, shared out among the images run at once.
+    /// Default: the number of cores.
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
+    /// Batch: images run at once. Default: as many as threads (one thread each), at most the
+    /// number of images.
+    #[arg(long, value_name = "N")]
+    pub jobs: Option<usize>,
     /// Width of a PNG output in pixels; the height keeps the aspect ratio. Default: the input's
     /// width.
     #[arg(long, value_name = "PX")]
@@ -93,13 +106,57 @@ pub enum Error {
     Pipeline(#[from] pipeline::Error),
     #[error("--width sets the size of a PNG output; give -o a .png path")]
     WidthWithoutPng,
+    #[error(transparent)]
+    Batch(#[from] super::batch::BatchError),
 }
 
 pub fn run(args: &Args) -> Result<(), Error> {
+    let [input] = args.inputs.as_slice() else {
+        return Ok(super::batch::run(args)?);
+    };
+    if input.is_dir() {
+        return Ok(super::batch::run(args)?);
+    }
+    if args.threads.is_some() || args.jobs.is_some() {
+        return Err(super::batch::BatchError::OneImage.into());
+    }
+    let observer = CliObserver::new(args.previews.clone());
+    if let Some(dir) = &args.previews {
+        io::create_dir(dir)?;
+    }
+    let result = vectorize_file(input, args, &observer);
+    observer.finish();
+    if let Some(error) = observer.write_error.into_inner().expect("not poisoned") {
+        return Err(error.into());
+    }
+    let (output_path, output) = result?;
+    if std::io::stderr().is_terminal() {
+        let scene = &output.scene;
+        eprintln!(
+            "{}: {} mode, {} paths ({} albedo, {} shade, {} light), {} segments",
+            output_path.display(),
+            output.mode.name(),
+            scene.path_count(),
+            scene.albedo.paths.len(),
+            scene.shade.paths.len(),
+            scene.light.paths.len(),
+            scene.segment_count()
+        );
+    }
+    Ok(())
+}
+
+/// Vectorizes one image as `args` say (their inputs aside) and writes the files; returns the
+/// output path and the pipeline's output.
+pub(super) fn vectorize_file(
+    input: &Path,
+    args: &Args,
+    observer: &impl Observer,
+) -> Result<(PathBuf, pipeline::Output), Error> {
     let output_path = args
         .output
         .clone()
-        .unwrap_or_else(|| args.input.with_extension("svg"));
+        .unwrap_or_else(|| input.with_extension("svg"));
     let png = io::is_png_output(&output_path);
     if args.width.is_some() && !png {
         return Err(Error::WidthWithoutPng);
@@ -110,7 +167,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
         accept_truncated: args.accept_truncated,
     };
     let decode = |path: &Path| io::decode_image(path, &limits);
-    let image = decode(&args.input)?;
+    let image = decode(input)?;
     let albedo = args.albedo.as_deref().map(decode).transpose()?;
     let masks = if let Some(dir) = &args.masks {
         Masks::Binary(read_mask_dir(dir, &limits)?)
@@ -132,10 +189,6 @@ pub fn run(args: &Args) -> Result<(), Error> {
         seed: args.seed,
         ..Params::default()
     };
-    let observer = CliObserver::new(args.previews.clone());
-    if let Some(dir) = &args.previews {
-        io::create_dir(dir)?;
-    }
     let output = pipeline::run(
         &Inputs {
             image,
@@ -143,14 +196,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
             masks,
         },
         &params,
-        &observer,
+        observer,
         &AtomicBool::new(false),
-    );
-    observer.finish();
-    if let Some(error) = observer.write_error.into_inner().expect("not poisoned") {
-        return Err(error.into());
-    }
-    let output = output?;
+    )?;
 
     let json_path = args
         .json
@@ -174,20 +222,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if png {
         io::write_png(&output_path, &output.scene, args.width, args.max_pixels)?;
     }
-    if std::io::stderr().is_terminal() {
-        let scene = &output.scene;
-        eprintln!(
-            "{}: {} mode, {} paths ({} albedo, {} shade, {} light), {} segments",
-            output_path.display(),
-            output.mode.name(),
-            scene.path_count(),
-            scene.albedo.paths.len(),
-            scene.shade.paths.len(),
-            scene.light.paths.len(),
-            scene.segment_count()
-        );
-    }
-    Ok(())
+    Ok((output_path, output))
 }
 
 /// The image files of a directory, in file-name order, decoded as binary masks.

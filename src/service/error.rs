@@ -77,6 +77,8 @@ pub enum ApiError {
     InvalidParams(String),
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    #[error("webhooks to `{0}` are not allowed by this server")]
+    WebhookHostNotAllowed(String),
     #[error("this Idempotency-Key was used with a different request")]
     IdempotencyMismatch,
     #[error("the job queue is full ({0} jobs); retry later")]
@@ -116,7 +118,11 @@ impl ApiError {
             | TooManyLabels { .. }
             | TooManyChanges { .. }
             | InputsTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
-            TruncatedImage(_) | UndecodableImage(..) | InvalidParams(_) | InvalidInput(_)
+            TruncatedImage(_)
+            | UndecodableImage(..)
+            | InvalidParams(_)
+            | InvalidInput(_)
+            | WebhookHostNotAllowed(_)
             | IdempotencyMismatch => StatusCode::UNPROCESSABLE_ENTITY,
             QueueFull(..) | DecodeBusy(_) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             NotReady(..) => StatusCode::CONFLICT,
@@ -150,6 +156,7 @@ impl ApiError {
             UndecodableImage(..) => "undecodable-image",
             InvalidParams(_) => "invalid-params",
             InvalidInput(_) => "invalid-input",
+            WebhookHostNotAllowed(_) => "webhook-host-not-allowed",
             IdempotencyMismatch => "idempotency-key-reused",
             QueueFull(..) => "queue-full",
             DecodeBusy(_) => "decode-busy",

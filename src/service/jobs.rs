@@ -91,8 +91,11 @@ async fn create(
     if key.is_none() {
         state.queue.check_capacity()?;
     }
-    let submission = submit::read(request, &state.limits).await?;
+    let mut submission = submit::read(request, &state.limits).await?;
     let fingerprint = submission.fingerprint();
+    let webhook = state
+        .webhooks
+        .target(std::mem::take(&mut submission.webhook))?;
     if let Some(key) = &key {
         if let Some(earlier) = state.queue.find_idempotent(&owner.0, key, &fingerprint)? {
             return Ok(created(&state, &earlier, true));
@@ -163,6 +166,7 @@ async fn create(
         idempotency: key.map(|key| Idempotency { key, fingerprint }),
         data_removed: false,
         checksums: Default::default(),
+        webhook,
     };
     let queue = state.queue.clone();
     let admission = tokio::task::spawn_blocking(move || queue.admit(record, inputs))
@@ -171,6 +175,7 @@ async fn create(
     let (entry, replayed) = match admission {
         Admission::Created(entry) => {
             tracing::info!("job created");
+            state.webhooks.follow(entry.clone());
             (entry, false)
         }
         Admission::Replayed(entry) => (entry, true),

@@ -19,10 +19,12 @@ mod queue;
 mod results;
 mod store;
 mod submit;
+mod webhooks;
 
 pub use conn::ConnectionLimits;
 pub use queue::QueueConfig;
 pub use submit::InputLimits;
+pub use webhooks::{WebhookConfig, WebhookConfigError};
 
 use std::collections::HashSet;
 use std::net::SocketAddr;
@@ -70,6 +72,8 @@ pub struct Config {
     /// Longest `Prefer: wait` honoured on a submission (RFC 7240); longer requests wait this
     /// long. Default 60 s; 0 ignores the preference.
     pub max_wait: Duration,
+    /// Webhook signing, allowed destinations and retries.
+    pub webhooks: WebhookConfig,
 }
 
 impl Default for Config {
@@ -84,6 +88,7 @@ impl Default for Config {
             cors_origins: Vec::new(),
             shutdown_grace: Duration::from_secs(30),
             max_wait: Duration::from_secs(60),
+            webhooks: WebhookConfig::default(),
         }
     }
 }
@@ -103,6 +108,7 @@ pub struct AppState {
     decode_slots: Arc<tokio::sync::Semaphore>,
     /// Bounds the PNG renders running at once ([`results::PNG_RENDERS`]).
     png_renders: Arc<tokio::sync::Semaphore>,
+    webhooks: Arc<webhooks::Webhooks>,
 }
 
 /// Why the server could not start or stopped with an error.
@@ -127,6 +133,9 @@ pub enum ServeError {
     /// A `--cors-origins` value.
     #[error("CORS origin `{0}` is not a valid header value")]
     CorsOrigin(String),
+    /// The webhook settings.
+    #[error(transparent)]
+    Webhooks(#[from] WebhookConfigError),
 }
 
 impl AppState {
@@ -145,7 +154,9 @@ impl AppState {
             store,
             metrics.clone(),
         )?;
+        let webhooks = webhooks::Webhooks::start(config.webhooks.clone(), queue.clone())?;
         Ok(Self {
+            webhooks,
             queue,
             metrics,
             limits: config.limits.clone(),

@@ -166,6 +166,9 @@ pub struct JobRecord {
     /// SHA-256 (hex) of each result file by name, checked when it is served.
     #[serde(default)]
     pub checksums: BTreeMap<String, String>,
+    /// Where to announce the job's events, and the deliveries so far.
+    #[serde(default)]
+    pub webhook: Option<Webhook>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -173,6 +176,73 @@ pub struct Idempotency {
     pub key: String,
     /// SHA-256 of the parameters and inputs.
     pub fingerprint: String,
+}
+
+/// A job's webhook: the URL and events its owner asked for, and every delivery made so far
+/// (persisted with the job, so deliveries go on after a restart).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Webhook {
+    pub url: String,
+    pub events: Vec<WebhookEvent>,
+    #[serde(default)]
+    pub deliveries: Vec<Delivery>,
+}
+
+/// What a webhook can announce.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WebhookEvent {
+    /// A worker took the job.
+    Started,
+    /// The job ended: succeeded, failed or canceled.
+    Completed,
+}
+
+impl WebhookEvent {
+    pub const ALL: [WebhookEvent; 2] = [WebhookEvent::Started, WebhookEvent::Completed];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            WebhookEvent::Started => "started",
+            WebhookEvent::Completed => "completed",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|event| event.name() == name)
+    }
+}
+
+/// One event's delivery: every attempt uses the same `webhook-id`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Delivery {
+    pub id: String,
+    pub event: WebhookEvent,
+    pub status: DeliveryStatus,
+    pub attempts: Vec<Attempt>,
+    /// Unix milliseconds of the next attempt, while pending.
+    pub next_attempt_at: Option<u64>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DeliveryStatus {
+    Pending,
+    /// A 2xx answer.
+    Delivered,
+    /// Every attempt failed.
+    Failed,
+}
+
+/// One POST to the webhook URL.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Attempt {
+    /// Unix milliseconds.
+    pub at: u64,
+    /// The receiver's HTTP status, when it answered.
+    pub status_code: Option<u16>,
+    /// Why there was no answer (connection, timeout).
+    pub error: Option<String>,
 }
 
 pub fn now_ms() -> u64 {
@@ -227,7 +297,61 @@ pub struct JobView {
     pub error: Option<Problem>,
     pub data_removed: bool,
     pub previews: Vec<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub webhook: Option<WebhookView>,
     pub urls: Urls,
+}
+
+/// A job's webhook as served: deliveries with their attempts, times in RFC 3339.
+#[derive(Debug, Serialize)]
+pub struct WebhookView {
+    pub url: String,
+    pub events: Vec<WebhookEvent>,
+    pub deliveries: Vec<DeliveryView>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct DeliveryView {
+    pub id: String,
+    pub event: WebhookEvent,
+    pub status: DeliveryStatus,
+    pub attempts: Vec<AttemptView>,
+    pub next_attempt_at: Option<String>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct AttemptView {
+    pub at: String,
+    pub status_code: Option<u16>,
+    pub error: Option<String>,
+}
+
+impl From<&Webhook> for WebhookView {
+    fn from(webhook: &Webhook) -> Self {
+        Self {
+            url: webhook.url.clone(),
+            events: webhook.events.clone(),
+            deliveries: webhook
+                .deliveries
+                .iter()
+                .map(|delivery| DeliveryView {
+                    id: delivery.id.clone(),
+                    event: delivery.event,
+                    status: delivery.status,
+                    attempts: delivery
+                        .attempts
+                        .iter()
+                        .map(|attempt| AttemptView {
+                            at: rfc3339(attempt.at),
+                            status_code: attempt.status_code,
+                            error: attempt.error.clone(),
+                        })
+                        .collect(),
+                    next_attempt_at: delivery.next_attempt_at.map(rfc3339),
+                })
+                .collect(),
+        }
+    }
 }
 
 #[derive(Debug, Serialize)]
@@ -278,6 +402,7 @@ impl JobView {
             error: record.error.clone(),
             data_removed: record.data_removed,
             previews: record.previews.clone(),
+            webhook: record.webhook.as_ref().map(WebhookView::from),
             urls: Urls {
                 events: format!("{base}/events"),
                 cancel: format!("{base}/cancel"),

@@ -249,6 +249,11 @@ impl Queue {
             .cloned()
     }
 
+    /// Every job, oldest first (for work resumed after a restart, such as webhook deliveries).
+    pub fn entries(&self) -> Vec<Arc<JobEntry>> {
+        lock(&self.state).jobs.values().cloned().collect()
+    }
+
     /// Jobs ahead of this one, while it is queued.
     pub fn queue_position(&self, id: &str) -> Option<usize> {
         lock(&self.state)

@@ -8,7 +8,7 @@ use axum::extract::{FromRequest, Multipart, Request};
 use axum::http::header;
 use base64::Engine;
 use http_body_util::BodyExt;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use super::error::ApiError;
@@ -86,6 +86,15 @@ pub struct Submission {
     pub masks: Vec<Bytes>,
     pub labels: Option<Bytes>,
     pub params: Params,
+    /// `webhook` and `webhook_events`, unchecked ([`super::webhooks::Webhooks::target`] checks).
+    pub webhook: WebhookRequest,
+}
+
+/// The webhook a submission asks for, as sent.
+#[derive(Default, Serialize)]
+pub struct WebhookRequest {
+    pub url: Option<String>,
+    pub events: Option<Vec<String>>,
 }
 
 /// The JSON form of a submission: images as base64 (optionally as `data:` URLs).
@@ -98,6 +107,8 @@ struct JsonSubmission {
     masks: Vec<String>,
     labels: Option<String>,
     params: Option<serde_json::Value>,
+    webhook: Option<String>,
+    webhook_events: Option<Vec<String>>,
 }
 
 /// Reads the body of `POST /v1/jobs`.
@@ -139,6 +150,7 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
     };
     let (mut image, mut albedo, mut masks, mut labels, mut params) =
         (None, None, Vec::new(), None, None);
+    let (mut webhook, mut webhook_events) = (None, None);
     while let Some(field) = multipart.next_field().await.map_err(field_error)? {
         let name = field.name().unwrap_or("").to_owned();
         let bytes = field.bytes().await.map_err(field_error)?;
@@ -147,6 +159,8 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
             "albedo" => &mut albedo,
             "labels" => &mut labels,
             "params" => &mut params,
+            "webhook" => &mut webhook,
+            "webhook_events" => &mut webhook_events,
             "mask" => {
                 masks.push(bytes);
                 if masks.len() > limits.max_masks {
@@ -175,12 +189,24 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
         };
     let image =
         image.ok_or_else(|| ApiError::BadRequest("the form field `image` is required".into()))?;
+    let text = |name: &str, bytes: Bytes| {
+        String::from_utf8(bytes.to_vec())
+            .map_err(|_| ApiError::InvalidParams(format!("`{name}` is not UTF-8 text")))
+    };
     Ok(Submission {
         image,
         albedo,
         masks,
         labels,
         params,
+        webhook: WebhookRequest {
+            url: webhook.map(|url| text("webhook", url)).transpose()?,
+            // A comma-separated list in a form.
+            events: webhook_events
+                .map(|events| text("webhook_events", events))
+                .transpose()?
+                .map(|events| events.split(',').map(|e| e.trim().to_owned()).collect()),
+        },
     })
 }
 
@@ -253,6 +279,10 @@ async fn read_json(request: Request, limits: &InputLimits) -> Result<Submission,
             .map(parse_params)
             .transpose()?
             .unwrap_or_default(),
+        webhook: WebhookRequest {
+            url: json.webhook,
+            events: json.webhook_events,
+        },
     })
 }
 
@@ -313,6 +343,13 @@ impl Submission {
         }
         if let Some(labels) = &self.labels {
             part(b"labels", labels);
+        }
+        // Only when sent: fingerprints of submissions without a webhook stay as they were.
+        if self.webhook.url.is_some() || self.webhook.events.is_some() {
+            part(
+                b"webhook",
+                &serde_json::to_vec(&self.webhook).expect("strings always serialise"),
+            );
         }
         hex(&hasher.finalize())
     }

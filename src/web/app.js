@@ -2,6 +2,10 @@
 // Events, show the layered SVG inline (so its layers can be toggled), recolour albedo paths
 // through the edits API, undo, and download the results. No dependencies, no build step.
 //
+// With an API key (the key field, kept in sessionStorage), every request carries
+// `Authorization: Bearer <key>`: the event stream is read with fetch (EventSource sends no
+// headers) and images and downloads are fetched and shown through blob: URLs.
+//
 // State the browser test reads: <body data-state="idle|submitting|queued|running|succeeded|
 // failed|canceled">, and on #svg-host data-svg-url / data-sha256 (SHA-256 of the exact bytes
 // fetched and inlined) / data-version (the edit id shown, or "original").
@@ -62,7 +66,79 @@ const ui = {
   editStatus: $("edit-status"),
   editError: $("edit-error"),
   downloads: $("downloads"),
+  apiKey: $("api-key"),
 };
+
+// ---------------------------------------------------------------- the API, with the key
+
+const KEY_STORAGE = "covec-api-key";
+
+try {
+  ui.apiKey.value = sessionStorage.getItem(KEY_STORAGE) ?? "";
+} catch {
+  // Storage may be disabled; the field still works for this page.
+}
+ui.apiKey.addEventListener("input", () => {
+  try {
+    const key = ui.apiKey.value.trim();
+    if (key) sessionStorage.setItem(KEY_STORAGE, key);
+    else sessionStorage.removeItem(KEY_STORAGE);
+  } catch {
+    // as above
+  }
+});
+
+/** fetch() with the API key, when one is given. */
+function api(url, options = {}) {
+  const key = ui.apiKey.value.trim();
+  const headers = new Headers(options.headers || {});
+  if (key) headers.set("authorization", `Bearer ${key}`);
+  return fetch(url, { ...options, headers });
+}
+
+/** A blob: URL of what `url` answers (fetched with the key), for <img> and downloads. */
+async function blobUrl(url) {
+  const response = await api(url, { cache: "no-store" });
+  if (!response.ok) throw new Error(await problemMessage(response));
+  return URL.createObjectURL(await response.blob());
+}
+
+/**
+ * Reads a Server-Sent Events stream with fetch (so the key goes along): calls `onEvent(type,
+ * data)` per event and resolves when the stream ends; `lastEventId` resumes a stream. Returns
+ * the last event id seen.
+ */
+async function readEvents(url, signal, lastEventId, onEvent) {
+  const headers = { accept: "text/event-stream" };
+  if (lastEventId) headers["last-event-id"] = lastEventId;
+  const response = await api(url, { headers, signal, cache: "no-store" });
+  if (!response.ok || !response.body) throw new Error(await problemMessage(response));
+  const reader = response.body.pipeThrough(new TextDecoderStream()).getReader();
+  let buffer = "";
+  let event = { type: "message", data: [], id: null };
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return lastEventId;
+    buffer += value;
+    const lines = buffer.split(/\r\n|\r|\n/);
+    buffer = lines.pop();
+    for (const line of lines) {
+      if (line === "") {
+        if (event.id !== null) lastEventId = event.id;
+        if (event.data.length) onEvent(event.type, event.data.join("\n"));
+        event = { type: "message", data: [], id: null };
+        continue;
+      }
+      if (line.startsWith(":")) continue;
+      const colon = line.indexOf(":");
+      const field = colon < 0 ? line : line.slice(0, colon);
+      const text = colon < 0 ? "" : line.slice(colon + 1).replace(/^ /, "");
+      if (field === "event") event.type = text;
+      else if (field === "data") event.data.push(text);
+      else if (field === "id") event.id = text;
+    }
+  }
+}
 
 /** Everything about the job on screen. Replaced wholesale on each submit. */
 let session = null;
@@ -210,10 +286,31 @@ ui.form.addEventListener("submit", async (event) => {
   setState("submitting");
   ui.submit.disabled = true;
   try {
-    const response = await fetch("/v1/jobs", { method: "POST", body: request.body });
+    const response = await api("/v1/jobs", { method: "POST", body: request.body });
     if (!response.ok) {
       showError(ui.formError, `The server rejected the image. ${await problemMessage(response)}`);
-      setState("idle");
+      /**
+ * With a key, a plain link would be refused (it sends no header): fetch the file with the key
+ * and save it through a blob: URL instead.
+ */
+async function download(event, link, href) {
+  if (!ui.apiKey.value.trim()) return;
+  event.preventDefault();
+  try {
+    const url = await blobUrl(href);
+    const save = document.createElement("a");
+    save.href = url;
+    save.download = link.download;
+    document.body.append(save);
+    save.click();
+    save.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 60_000);
+  } catch (error) {
+    showError(ui.jobError, `The download failed. ${error.message}`);
+  }
+}
+
+setState("idle");
       return;
     }
     const job = await response.json();
@@ -223,7 +320,28 @@ ui.form.addEventListener("submit", async (event) => {
     follow(job);
   } catch (error) {
     showError(ui.formError, `Could not reach the server: ${error.message}`);
-    setState("idle");
+    /**
+ * With a key, a plain link would be refused (it sends no header): fetch the file with the key
+ * and save it through a blob: URL instead.
+ */
+async function download(event, link, href) {
+  if (!ui.apiKey.value.trim()) return;
+  event.preventDefault();
+  try {
+    const url = await blobUrl(href);
+    const save = document.createElement("a");
+    save.href = url;
+    save.download = link.download;
+    document.body.append(save);
+    save.click();
+    save.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 60_000);
+  } catch (error) {
+    showError(ui.jobError, `The download failed. ${error.message}`);
+  }
+}
+
+setState("idle");
   } finally {
     ui.submit.disabled = false;
   }
@@ -266,33 +384,43 @@ function follow(job) {
     finish(job);
     return;
   }
-  const source = new EventSource(jobUrl(job, "events", "/events"));
-  session.events = source;
-  const onEvent = (event) => {
+  const current = session;
+  const controller = new AbortController();
+  current.events = controller;
+  // The service sends `progress` events (the job) while it runs, then one `completed`.
+  const onEvent = (type, text) => {
+    if (type !== "progress" && type !== "completed") return;
     let data;
     try {
-      data = JSON.parse(event.data);
+      data = JSON.parse(text);
     } catch {
-      return; // keep-alives and non-JSON notes carry nothing to show
+      return; // non-JSON notes carry nothing to show
     }
     handleUpdate(data);
   };
-  // The service sends `progress` events (the job) while it runs, then one `completed`.
-  for (const type of ["progress", "completed"]) {
-    source.addEventListener(type, onEvent);
-  }
-  source.addEventListener("error", () => {
-    // EventSource reconnects by itself while CONNECTING; once CLOSED (or after the end) poll.
-    if (source.readyState === EventSource.CLOSED && session?.events === source) {
-      session.events = null;
+  const url = jobUrl(job, "events", "/events");
+  (async () => {
+    // A dropped stream is resumed once from its last event id (no repeats); after that, or if
+    // the stream cannot be opened, the job is polled.
+    let lastEventId = null;
+    for (let attempt = 0; attempt < 2; attempt++) {
+      try {
+        lastEventId = await readEvents(url, controller.signal, lastEventId, onEvent);
+      } catch {
+        break;
+      }
+      if (current !== session || current.events !== controller || TERMINAL.has(current.job.status)) return;
+    }
+    if (current === session && current.events === controller) {
+      current.events = null;
       poll();
     }
-  });
+  })();
 }
 
 function stopFollowing() {
   if (!session) return;
-  session.events?.close();
+  session.events?.abort();
   session.events = null;
   clearTimeout(session.pollTimer);
 }
@@ -301,7 +429,7 @@ async function poll() {
   const current = session;
   if (!current?.job) return;
   try {
-    const response = await fetch(jobUrl(current.job, "self", ""), { cache: "no-store" });
+    const response = await api(jobUrl(current.job, "self", ""), { cache: "no-store" });
     if (current !== session) return;
     if (response.ok) {
       handleUpdate(await response.json());
@@ -383,7 +511,7 @@ ui.cancel.addEventListener("click", async () => {
   if (!session?.job) return;
   ui.cancel.disabled = true;
   try {
-    const response = await fetch(jobUrl(session.job, "cancel", "/cancel"), { method: "POST" });
+    const response = await api(jobUrl(session.job, "cancel", "/cancel"), { method: "POST" });
     if (!response.ok) showError(ui.jobError, `Could not cancel. ${await problemMessage(response)}`);
     else handleUpdate(await response.json().catch(() => null));
   } catch (error) {
@@ -402,7 +530,9 @@ function showPreviews(names) {
     const entry = document.createElement("li");
     const figure = document.createElement("figure");
     const img = document.createElement("img");
-    img.src = url;
+    blobUrl(url)
+      .then((blob) => (img.src = blob))
+      .catch((error) => showError(ui.jobError, `A preview could not be loaded. ${error.message}`));
     img.alt = `Preview after stage ${name}`;
     img.decoding = "async";
     const caption = document.createElement("figcaption");
@@ -431,7 +561,7 @@ async function finish(job) {
 // ---------------------------------------------------------------- the result
 
 async function fetchText(url) {
-  const response = await fetch(url, { cache: "no-store" });
+  const response = await api(url, { cache: "no-store" });
   if (!response.ok) throw new Error(await problemMessage(response));
   return response.text();
 }
@@ -640,7 +770,7 @@ ui.applyColour.addEventListener("click", async () => {
   showError(ui.editError, "");
   ui.editStatus.textContent = "Recolouring…";
   try {
-    const response = await fetch(jobUrl(current.job, "edits", "/edits"), {
+    const response = await api(jobUrl(current.job, "edits", "/edits"), {
       method: "POST",
       headers: { "content-type": "application/json" },
       body: JSON.stringify(body),
@@ -707,10 +837,32 @@ function fillDownloads() {
       link.href = href;
       link.download = filename;
       link.textContent = label;
+      link.addEventListener("click", (event) => download(event, link, href));
       item.append(link);
       return item;
     }),
   );
+}
+
+/**
+ * With a key, a plain link would be refused (it sends no header): fetch the file with the key
+ * and save it through a blob: URL instead.
+ */
+async function download(event, link, href) {
+  if (!ui.apiKey.value.trim()) return;
+  event.preventDefault();
+  try {
+    const url = await blobUrl(href);
+    const save = document.createElement("a");
+    save.href = url;
+    save.download = link.download;
+    document.body.append(save);
+    save.click();
+    save.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 60_000);
+  } catch (error) {
+    showError(ui.jobError, `The download failed. ${error.message}`);
+  }
 }
 
 setState("idle");

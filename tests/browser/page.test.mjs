@@ -129,11 +129,11 @@ async function freePort() {
   });
 }
 
-async function startServer(binary) {
+async function startServer(binary, extraFlags = []) {
   const port = await freePort();
   const dataDir = fs.mkdtempSync(path.join(os.tmpdir(), "covec-web-test-data-"));
   const log = fs.openSync(path.join(args.artifacts, "server.log"), "w");
-  const flags = ["--addr", `127.0.0.1:${port}`, "--data-dir", dataDir, "--workers", "1", "--max-body-bytes", `${MAX_BODY_BYTES}`, "--max-iterations", `${MAX_ITERATIONS}`];
+  const flags = ["--addr", `127.0.0.1:${port}`, "--data-dir", dataDir, "--workers", "1", "--max-body-bytes", `${MAX_BODY_BYTES}`, "--max-iterations", `${MAX_ITERATIONS}`, ...extraFlags];
   const child = spawn(binary, ["serve", ...flags], {
     stdio: ["ignore", log, log],
     // Only the flags configure it: no API keys or limits from the caller's environment.
@@ -171,8 +171,8 @@ async function startServer(binary) {
   };
 }
 
-async function apiBytes(base, url) {
-  const response = await fetch(new URL(url, base));
+async function apiBytes(base, url, headers = {}) {
+  const response = await fetch(new URL(url, base), { headers });
   check(response.ok, `GET ${url}: ${response.status}`);
   return Buffer.from(await response.arrayBuffer());
 }
@@ -678,9 +678,122 @@ async function run(context, base) {
     await screenshot("canceled");
   });
 
+  await step("a dropped image with an albedo map and masks is sent and vectorised", async () => {
+    for (const [key, value] of Object.entries(JOB.iterations)) await page.fill(`#it-${key}`, value);
+    const png = fs.readFileSync(FIXTURE);
+    const size = { width: png.readUInt32BE(16), height: png.readUInt32BE(20) };
+    // Drop the image on the drop zone, as a person dragging a file would.
+    await page.evaluate(({ b64 }) => {
+      const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+      const data = new DataTransfer();
+      data.items.add(new File([bytes], "dropped.png", { type: "image/png" }));
+      const zone = document.getElementById("drop");
+      for (const type of ["dragenter", "dragover", "drop"]) {
+        zone.dispatchEvent(new DragEvent(type, { dataTransfer: data, bubbles: true, cancelable: true }));
+      }
+    }, { b64: png.toString("base64") });
+    check((await page.evaluate(() => document.getElementById("image").files[0]?.name)) === "dropped.png", "the drop did not choose the file");
+    await page.waitForFunction(() => {
+      const chosen = document.getElementById("chosen");
+      return !chosen.hidden && chosen.complete && chosen.naturalWidth > 0;
+    });
+    // The image itself as the albedo map, and two binary masks (left and right halves).
+    await page.setInputFiles("#albedo", FIXTURE);
+    await page.evaluate(async ({ width, height }) => {
+      const data = new DataTransfer();
+      for (const [index, x] of [[0, 0], [1, Math.floor(width / 2)]]) {
+        const canvas = new OffscreenCanvas(width, height);
+        const context = canvas.getContext("2d");
+        context.fillStyle = "#000";
+        context.fillRect(0, 0, width, height);
+        context.fillStyle = "#fff";
+        context.fillRect(x, 0, Math.ceil(width / 2), height);
+        const blob = await canvas.convertToBlob({ type: "image/png" });
+        data.items.add(new File([blob], `mask-${index}.png`, { type: "image/png" }));
+      }
+      document.getElementById("masks").files = data.files;
+    }, size);
+    // What the page hands to fetch (a multipart body's files are not visible on the wire here).
+    await page.evaluate(() => {
+      const original = window.fetch;
+      window.fetch = (url, options) => {
+        if (options?.body instanceof FormData) {
+          window.sentFields = Array.from(options.body.entries(), ([name, value]) => [name, value.name ?? "", value.size ?? 0]);
+        }
+        return original(url, options);
+      };
+    });
+    const created = page.waitForResponse((r) => r.url().endsWith("/v1/jobs") && r.request().method() === "POST");
+    await page.click("#submit");
+    const sentFields = await page.evaluate(() => window.sentFields ?? []);
+    const fields = (name) => sentFields.filter(([field]) => field === name);
+    check(
+      fields("image").length === 1 && fields("albedo").length === 1 && fields("mask").length === 2,
+      `sent ${JSON.stringify(sentFields)}`,
+    );
+    check(fields("image")[0][1] === "dropped.png", `the image sent was ${fields("image")[0][1]}`);
+    const response = await created;
+    check(response.status() === 201, `POST /v1/jobs gave ${response.status()}: ${await response.text()}`);
+    await page.waitForSelector("body[data-state=succeeded] #svg-host > svg", { timeout: JOB_TIMEOUT_MS });
+    facts.dropped_with_masks = { job: (await response.json()).id, mask_size: size };
+    await screenshot("dropped-with-masks");
+  });
+
   await step("no script errors or blocked resources", async () => {
     check(problems.length === 0, problems.join("\n"));
   });
+
+  if (args.covec) {
+    await step("the page works against a server started with --api-keys", async () => {
+      const key = "browser-test-key";
+      const keyed = await startServer(path.resolve(args.covec), ["--api-keys", key]);
+      const other = await context.newPage();
+      const errors = [];
+      other.on("pageerror", (error) => errors.push(`page error: ${error.message}`));
+      try {
+        await other.goto(keyed.url, { waitUntil: "load" });
+        const fill = async () => {
+          await other.setInputFiles("#image", FIXTURE);
+          await other.fill("#paths", JOB.paths);
+          await other.click("#advanced > summary");
+          await other.fill("#max-size", JOB.maxSize);
+          for (const [name, value] of Object.entries(JOB.iterations)) await other.fill(`#it-${name}`, value);
+        };
+        // Without the key the server's refusal is shown.
+        await fill();
+        await other.click("#submit");
+        await other.waitForSelector("#form-error:not([hidden])", { timeout: 10_000 });
+        const refusal = await other.locator("#form-error").textContent();
+        check(/Authorization|key/i.test(refusal), `message without a key: ${refusal}`);
+        // With it: the stream, previews, result and downloads all carry it.
+        await other.fill("#api-key", key);
+        await other.click("#submit");
+        await other.waitForSelector("body[data-state=succeeded] #svg-host > svg", { timeout: JOB_TIMEOUT_MS });
+        await other.waitForFunction(() => {
+          const images = Array.from(document.querySelectorAll("#previews img"));
+          return images.length > 0 && images.every((img) => img.complete && img.naturalWidth > 0 && img.src.startsWith("blob:"));
+        }, null, { timeout: 10_000 });
+        const stage = await other.locator("#stage-name").textContent();
+        check(stage === "Done", `stage line: ${stage}`);
+        const url = await other.locator("#svg-host").getAttribute("data-svg-url");
+        const [download] = await Promise.all([
+          other.waitForEvent("download"),
+          other.locator("#downloads a", { hasText: /^Layered SVG$/ }).click(),
+        ]);
+        const bytes = fs.readFileSync(await download.path());
+        const served = await apiBytes(keyed.url, url, { authorization: `Bearer ${key}` });
+        check(bytes.equals(served), `keyed download: ${bytes.length} bytes, the API serves ${served.length}`);
+        // The key stays for the tab (sessionStorage), not in the page's URL or cookies.
+        await other.reload({ waitUntil: "load" });
+        check((await other.inputValue("#api-key")) === key, "the key was not kept for the tab");
+        facts.keyed = { session_storage_items: await other.evaluate(() => sessionStorage.length), download_bytes: bytes.length };
+        check(errors.length === 0, errors.join("\n"));
+      } finally {
+        await other.close();
+        await keyed.stop();
+      }
+    });
+  }
 }
 
 await main();
