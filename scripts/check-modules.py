@@ -17,7 +17,7 @@ from pathlib import Path
 LAYERS = [
     ["scene"],
     ["geom"],
-    ["render"],
+    ["render", "opaque"],
     ["imageio", "optim", "svg"],
     ["synth"],
     ["perceptual", "decompose", "output", "edit"],

@@ -22,6 +22,7 @@ pub mod edit;
 pub mod eval;
 pub mod geom;
 pub mod imageio;
+pub mod opaque;
 pub(crate) mod optim;
 pub mod output;
 pub mod perceptual;
