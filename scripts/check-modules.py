@@ -18,7 +18,7 @@ LAYERS = [
     ["scene"],
     ["geom"],
     ["render", "opaque"],
-    ["imageio", "optim", "svg"],
+    ["imageio", "optim", "svg", "pdf"],
     ["synth"],
     ["perceptual", "decompose", "output", "edit"],
     ["pipeline"],

@@ -25,6 +25,7 @@ pub mod imageio;
 pub mod opaque;
 pub(crate) mod optim;
 pub mod output;
+pub mod pdf;
 pub mod perceptual;
 pub mod pipeline;
 pub mod render;

@@ -20,9 +20,10 @@ use covec::svg::{self, SvgOptions};
 pub struct Args {
     /// The image: PNG, JPEG or WebP; 8 or 16 bit; grey, RGB or RGBA (alpha is composited over white).
     pub input: PathBuf,
-    /// Where to write the layered SVG, or with a `.png` extension a PNG drawn by covec's own
-    /// renderer (see --width). Default: the input path with the extension `.svg`.
-    #[arg(short, long, value_name = "OUT.svg|OUT.png")]
+    /// Where to write the layered SVG (flattened with --flatten), or with a `.png` extension a
+    /// PNG drawn by covec's own renderer (see --width), or with `.pdf` a vector PDF of the
+    /// flattened picture. Default: the input path with the extension `.svg`.
+    #[arg(short, long, value_name = "OUT.svg|OUT.png|OUT.pdf")]
     pub output: Option<PathBuf>,
     /// Width of a PNG output in pixels; the height keeps the aspect ratio. Default: the input's
     /// width.
@@ -67,6 +68,10 @@ pub struct Args {
     /// Also write each layer as a standalone SVG here (albedo.svg, shade.svg, light.svg).
     #[arg(long, value_name = "DIR")]
     pub layers: Option<PathBuf>,
+    /// Write the SVG flattened: the same picture as plain opaque paths, without blend modes or
+    /// opacities, for programs that lack `multiply` or `plus-lighter` (larger file, not layered).
+    #[arg(long)]
+    pub flatten: bool,
     /// Decimals of the SVGs' coordinates (0-6). Default: 1 up to a working long side of 1024 px,
     /// 2 above. The JSON scene always keeps full precision.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=i64::from(svg::MAX_PRECISION)))]
@@ -90,6 +95,8 @@ pub enum Error {
     Pipeline(#[from] pipeline::Error),
     #[error("--width sets the size of a PNG output; give -o a .png path")]
     WidthWithoutPng,
+    #[error("--flatten applies to an SVG output (a PDF is always flat, a PNG has no paths)")]
+    FlattenWithoutSvg,
 }
 
 pub fn run(args: &Args) -> Result<(), Error> {
@@ -98,8 +105,13 @@ pub fn run(args: &Args) -> Result<(), Error> {
         .clone()
         .unwrap_or_else(|| args.input.with_extension("svg"));
     let png = io::is_png_output(&output_path);
+    let pdf = io::is_pdf_output(&output_path);
+    let svg = !png && !pdf;
     if args.width.is_some() && !png {
         return Err(Error::WidthWithoutPng);
+    }
+    if args.flatten && !svg {
+        return Err(Error::FlattenWithoutSvg);
     }
     let limits = Limits {
         max_pixels: args.max_pixels,
@@ -158,9 +170,22 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let svg_options = SvgOptions {
         precision: args.precision,
     };
-    let artefacts = output::artefacts_with(&output.scene, RESULT_FILES, &svg_options);
+    let main = if pdf {
+        FileKind::Pdf
+    } else if args.flatten && svg {
+        FileKind::FlatSvg
+    } else {
+        FileKind::LayeredSvg
+    };
+    let mut kinds = RESULT_FILES.to_vec();
+    if main != FileKind::LayeredSvg {
+        kinds.push(main);
+    }
+    let artefacts = output::artefacts_with(&output.scene, &kinds, &svg_options);
     io::write_artefacts(&artefacts, |kind| match kind {
-        FileKind::LayeredSvg => (!png).then(|| output_path.clone()),
+        FileKind::LayeredSvg | FileKind::FlatSvg | FileKind::Pdf => {
+            (svg && kind == main || pdf && kind == FileKind::Pdf).then(|| output_path.clone())
+        }
         FileKind::SceneJson => Some(json_path.clone()),
         FileKind::Layer(layer) => {
             (args.layers.as_ref()).map(|dir| dir.join(format!("{}.svg", layer.name())))
