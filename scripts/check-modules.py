@@ -17,8 +17,8 @@ from pathlib import Path
 LAYERS = [
     ["scene"],
     ["geom"],
-    ["render"],
-    ["imageio", "optim", "svg"],
+    ["render", "opaque"],
+    ["imageio", "optim", "svg", "pdf"],
     ["synth"],
     ["perceptual", "decompose", "output", "edit"],
     ["pipeline"],

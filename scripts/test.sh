@@ -25,6 +25,7 @@ else
     echo "test.sh: no clippy in this toolchain, lints skipped" >&2
 fi
 
+scripts/setup-renderers.sh
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
 
 # The web page end to end (issue 7): headless Debian Chromium driven by playwright-core against a

@@ -3,6 +3,7 @@
 //! them builds an SVG, JSON or preview of its own.
 
 use crate::imageio::encode_png;
+use crate::pdf;
 use crate::render::composite::composite;
 use crate::scene::{LayerKind, Scene};
 use crate::svg::{self, SvgOptions};
@@ -18,6 +19,10 @@ pub enum FileKind {
     Layer(LayerKind),
     /// The scene as shown, rendered by covec's own renderer (`preview.png`).
     Preview,
+    /// The flattened SVG: the picture as plain opaque paths (`result-flat.svg`).
+    FlatSvg,
+    /// The flattened picture as a vector PDF (`result.pdf`).
+    Pdf,
 }
 
 impl FileKind {
@@ -28,13 +33,16 @@ impl FileKind {
             FileKind::SceneJson => "scene.json".into(),
             FileKind::Layer(kind) => format!("layers/{}.svg", kind.name()),
             FileKind::Preview => "preview.png".into(),
+            FileKind::FlatSvg => "result-flat.svg".into(),
+            FileKind::Pdf => "result.pdf".into(),
         }
     }
 
     /// The media type it is served as.
     pub fn media_type(self) -> &'static str {
         match self {
-            FileKind::LayeredSvg | FileKind::Layer(_) => "image/svg+xml",
+            FileKind::LayeredSvg | FileKind::Layer(_) | FileKind::FlatSvg => "image/svg+xml",
+            FileKind::Pdf => "application/pdf",
             FileKind::SceneJson => "application/json",
             FileKind::Preview => "image/png",
         }
@@ -140,6 +148,8 @@ pub fn artefacts_with(scene: &Scene, kinds: &[FileKind], options: &SvgOptions) -
                 }
                 FileKind::Layer(layer) => svg::layer_to_svg(scene, layer, options).into_bytes(),
                 FileKind::Preview => encode_png(&composite(scene)),
+                FileKind::FlatSvg => svg::to_flat_svg(scene, options).into_bytes(),
+                FileKind::Pdf => pdf::to_pdf(scene),
             },
         })
         .collect()

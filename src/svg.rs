@@ -9,6 +9,7 @@
 
 use std::fmt::Write;
 
+use crate::opaque::{self, Region};
 use crate::scene::{LayerKind, Path, PathId, Point, Scene};
 
 /// Formatting choices.
@@ -72,6 +73,29 @@ pub fn layer_to_svg(scene: &Scene, kind: LayerKind, options: &SvgOptions) -> Str
     open_group(&mut out, kind, "");
     write_paths(&mut out, scene, kind, options);
     out.push_str("</g>\n</svg>\n");
+    out
+}
+
+/// The flattened SVG: the same picture as [`to_svg`] as plain opaque paths in painter's order
+/// ([`opaque::regions`]), with no blend mode, opacity, filter or image, for programs that lack
+/// `multiply` or `plus-lighter`.
+pub fn to_flat_svg(scene: &Scene, options: &SvgOptions) -> String {
+    let decimals = options.decimals(scene);
+    let mut out = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{}\" height=\"{}\" viewBox=\"0 0 {} {}\">\n<title>covec, flattened: albedo × shade + light as opaque regions</title>\n",
+        scene.original_width, scene.original_height, scene.width, scene.height
+    );
+    for region in opaque::regions(scene) {
+        let data = polygon_data(&region, decimals);
+        if !data.is_empty() {
+            let _ = writeln!(
+                out,
+                "<path fill=\"{}\" d=\"{data}\"/>",
+                hex_colour(region.color)
+            );
+        }
+    }
+    out.push_str("</svg>\n");
     out
 }
 
@@ -153,6 +177,49 @@ pub fn path_data(path: &Path, decimals: u32) -> String {
         current = end;
     }
     data.command('Z');
+    data.text
+}
+
+/// Compact path data of a region's polygons: per contour `M`, lines absolute (`L`) or relative
+/// (`l`), whichever is shorter, and `Z`; vertices that round onto the previous one are dropped,
+/// and so are contours left with fewer than 3.
+fn polygon_data(region: &Region, decimals: u32) -> String {
+    let scale = 10f64.powi(decimals as i32);
+    let mut data = PathData::default();
+    for contour in &region.contours {
+        let mut vertices: Vec<[i64; 2]> = Vec::with_capacity(contour.len());
+        for p in contour {
+            let v = [p.x, p.y].map(|c| quantize(c, scale));
+            if vertices.last() != Some(&v) {
+                vertices.push(v);
+            }
+        }
+        while vertices.len() > 1 && vertices.first() == vertices.last() {
+            vertices.pop();
+        }
+        if vertices.len() < 3 {
+            continue;
+        }
+        data.command('M');
+        data.numbers(&vertices[0], decimals);
+        let mut current = vertices[0];
+        for &v in &vertices[1..] {
+            let relative = [v[0] - current[0], v[1] - current[1]];
+            let [abs, rel] = [('L', v), ('l', relative)].map(|(command, values)| {
+                let mut candidate = data.continuation();
+                candidate.command(command);
+                candidate.numbers(&values, decimals);
+                candidate
+            });
+            data.append(if rel.text.len() <= abs.text.len() {
+                rel
+            } else {
+                abs
+            });
+            current = v;
+        }
+        data.command('Z');
+    }
     data.text
 }
 

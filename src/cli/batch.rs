@@ -70,6 +70,7 @@ pub fn run(args: &Args) -> Result<(), BatchError> {
         ("--previews", args.previews.is_some()),
         ("--layers", args.layers.is_some()),
         ("--width", args.width.is_some()),
+        ("--flatten", args.flatten),
     ];
     if let Some((option, _)) = per_image.iter().find(|(_, given)| *given) {
         return Err(BatchError::PerImageOption(option));

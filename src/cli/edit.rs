@@ -140,7 +140,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
         FileKind::LayeredSvg => Some(args.output.clone()),
         FileKind::SceneJson => Some(json.clone()),
         FileKind::Preview => args.preview.clone(),
-        FileKind::Layer(_) => None,
+        FileKind::Layer(_) | FileKind::FlatSvg | FileKind::Pdf => None,
     })?;
     if edit.changed.is_empty() {
         println!("no path changed");

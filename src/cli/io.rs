@@ -83,6 +83,11 @@ pub fn is_png_output(path: &Path) -> bool {
     extension(path) == "png"
 }
 
+/// Whether an output path asks for a PDF (extension `.pdf`, any case).
+pub fn is_pdf_output(path: &Path) -> bool {
+    extension(path) == "pdf"
+}
+
 /// Reads a JSON scene (`covec vectorize`'s or the service's `scene.json`).
 pub fn read_scene(path: &Path) -> Result<Scene, IoError> {
     serde_json::from_slice(&read(path)?).map_err(|source| IoError::Scene {

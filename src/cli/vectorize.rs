@@ -24,10 +24,11 @@ pub struct Args {
     /// batch: each becomes `<name>.svg` and `<name>.json` in the output directory.
     #[arg(required = true, value_name = "INPUT")]
     pub inputs: Vec<PathBuf>,
-    /// Where to write the layered SVG, or with a `.png` extension a PNG drawn by covec's own
-    /// renderer (see --width). Default: the input path with the extension `.svg`. For a batch:
-    /// the output directory (required; created if missing).
-    #[arg(short, long, value_name = "OUT.svg|OUT.png|DIR")]
+    /// Where to write the layered SVG (flattened with --flatten), or with a `.png` extension a
+    /// PNG drawn by covec's own renderer (see --width), or with `.pdf` a vector PDF of the
+    /// flattened picture. Default: the input path with the extension `.svg`. For a batch: the
+    /// output directory (required; created if missing).
+    #[arg(short, long, value_name = "OUT.svg|OUT.png|OUT.pdf|DIR")]
     pub output: Option<PathBuf>,
     /// Batch: pipeline threads in total, shared out among the images run at once.
     /// Default: the number of cores.
@@ -80,6 +81,10 @@ pub struct Args {
     /// Also write each layer as a standalone SVG here (albedo.svg, shade.svg, light.svg).
     #[arg(long, value_name = "DIR")]
     pub layers: Option<PathBuf>,
+    /// Write the SVG flattened: the same picture as plain opaque paths, without blend modes or
+    /// opacities, for programs that lack `multiply` or `plus-lighter` (larger file, not layered).
+    #[arg(long)]
+    pub flatten: bool,
     /// Decimals of the SVGs' coordinates (0-6). Default: 1 up to a working long side of 1024 px,
     /// 2 above. The JSON scene always keeps full precision.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=i64::from(svg::MAX_PRECISION)))]
@@ -108,6 +113,8 @@ pub enum Error {
     WidthWithoutPng,
     #[error(transparent)]
     Batch(#[from] super::batch::BatchError),
+    #[error("--flatten applies to an SVG output (a PDF is always flat, a PNG has no paths)")]
+    FlattenWithoutSvg,
 }
 
 pub fn run(args: &Args) -> Result<(), Error> {
@@ -158,8 +165,13 @@ pub(super) fn vectorize_file(
         .clone()
         .unwrap_or_else(|| input.with_extension("svg"));
     let png = io::is_png_output(&output_path);
+    let pdf = io::is_pdf_output(&output_path);
+    let svg = !png && !pdf;
     if args.width.is_some() && !png {
         return Err(Error::WidthWithoutPng);
+    }
+    if args.flatten && !svg {
+        return Err(Error::FlattenWithoutSvg);
     }
     let limits = Limits {
         max_pixels: args.max_pixels,
@@ -210,9 +222,22 @@ pub(super) fn vectorize_file(
     let svg_options = SvgOptions {
         precision: args.precision,
     };
-    let artefacts = output::artefacts_with(&output.scene, RESULT_FILES, &svg_options);
+    let main = if pdf {
+        FileKind::Pdf
+    } else if args.flatten && svg {
+        FileKind::FlatSvg
+    } else {
+        FileKind::LayeredSvg
+    };
+    let mut kinds = RESULT_FILES.to_vec();
+    if main != FileKind::LayeredSvg {
+        kinds.push(main);
+    }
+    let artefacts = output::artefacts_with(&output.scene, &kinds, &svg_options);
     io::write_artefacts(&artefacts, |kind| match kind {
-        FileKind::LayeredSvg => (!png).then(|| output_path.clone()),
+        FileKind::LayeredSvg | FileKind::FlatSvg | FileKind::Pdf => {
+            (svg && kind == main || pdf && kind == FileKind::Pdf).then(|| output_path.clone())
+        }
         FileKind::SceneJson => Some(json_path.clone()),
         FileKind::Layer(layer) => {
             (args.layers.as_ref()).map(|dir| dir.join(format!("{}.svg", layer.name())))

@@ -1,5 +1,5 @@
-//! A job's results: the layered SVG, the per-layer SVGs, the JSON scene, a PNG of any width and
-//! the stage previews.
+//! A job's results: the layered or flattened SVG, the per-layer SVGs, the JSON scene, a PNG of
+//! any width, the PDF and the stage previews.
 //!
 //! Previews are served while the job runs; the other results once it has succeeded.
 
@@ -24,6 +24,7 @@ pub fn endpoints() -> Vec<Endpoint> {
         endpoint(Method::GET, "/v1/jobs/{id}/layers/{file}", layer),
         endpoint(Method::GET, "/v1/jobs/{id}/scene.json", scene),
         endpoint(Method::GET, "/v1/jobs/{id}/png", png),
+        endpoint(Method::GET, "/v1/jobs/{id}/pdf", pdf),
         endpoint(Method::GET, "/v1/jobs/{id}/previews", previews),
         endpoint(Method::GET, "/v1/jobs/{id}/previews/{file}", preview),
     ]
@@ -75,14 +76,61 @@ pub(super) async fn artefact(
     }
 }
 
+/// The query of `GET /v1/jobs/{id}/svg`.
+#[derive(serde::Deserialize)]
+struct SvgQuery {
+    /// `true`: the flattened SVG (opaque paths, no blend modes) instead of the layered one.
+    #[serde(default)]
+    flatten: bool,
+}
+
 async fn svg(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+    query: Result<Query<SvgQuery>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
+    let entry = find(&state, &owner, &id)?;
+    require_success(&entry.snapshot())?;
+    if query.flatten {
+        flat_file(&state, id, FileKind::FlatSvg).await
+    } else {
+        scene_file(&state, &id, "", FileKind::LayeredSvg).await
+    }
+}
+
+async fn pdf(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
     let entry = find(&state, &owner, &id)?;
     require_success(&entry.snapshot())?;
-    scene_file(&state, &id, "", FileKind::LayeredSvg).await
+    flat_file(&state, id, FileKind::Pdf).await
+}
+
+/// A flattened output (SVG or PDF) made from the stored scene on demand, off the async workers
+/// and one at a time with the PNG renders (the boolean operations take a CPU for a while).
+async fn flat_file(state: &AppState, id: String, kind: FileKind) -> Result<Response, ApiError> {
+    let _slot = state
+        .png_renders
+        .acquire()
+        .await
+        .map_err(|error| ApiError::Internal(error.to_string()))?;
+    let queue = state.queue.clone();
+    let bytes = tokio::task::spawn_blocking(move || {
+        let scene = stored_scene(&queue, &id, "")?;
+        Ok::<_, ApiError>(
+            output::artefacts(&scene, &[kind])
+                .pop()
+                .expect("one file asked for")
+                .bytes,
+        )
+    })
+    .await
+    .map_err(|error| ApiError::Internal(error.to_string()))??;
+    Ok(([(header::CONTENT_TYPE, kind.media_type())], bytes).into_response())
 }
 
 async fn layer(
