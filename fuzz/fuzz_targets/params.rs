@@ -12,9 +12,7 @@ fuzz_target!(|data: &[u8]| {
     // The service parses the field to a JSON value first, then to parameters.
     if let Ok(value) = serde_json::from_slice::<serde_json::Value>(data)
         && let Ok(params) = serde_json::from_value::<Params>(value)
-        && params
-            .validate(&InputLimits::default().params())
-            .is_ok()
+        && params.validate(&InputLimits::default().params()).is_ok()
     {
         let json = serde_json::to_vec(&params).expect("params serialise");
         let again: Params = serde_json::from_slice(&json).expect("params parse back");

@@ -1,12 +1,17 @@
 //! A JSON scene (`covec render` / `covec edit` input, the service's `scene.json`), then what
-//! the CLI does with one: SVG files, a bounded PNG render and a colour edit.
+//! the CLI does with one: SVG files, a bounded PNG render, colour edits with a preview, and a
+//! reference edit against the scene's own composite.
 #![no_main]
 
-use covec::edit::{self, ColorChange, Target};
+use covec::edit::{self, ColorChange, ReferenceParams, Target};
 use covec::output::{self, FileKind};
+use covec::render::composite::composite;
 use covec::scene::{LayerKind, PathId};
 use covec::{Point, Scene};
 use libfuzzer_sys::fuzz_target;
+
+/// `covec edit`'s canvas limit is `Limits::default().max_pixels`; smaller here, to fuzz quickly.
+const MAX_CANVAS_PIXELS: u64 = 1 << 16;
 
 fuzz_target!(|data: &[u8]| {
     let Ok(scene) = serde_json::from_slice::<Scene>(data) else {
@@ -39,7 +44,23 @@ fuzz_target!(|data: &[u8]| {
             opacity: None,
         },
     ];
-    for change in changes {
-        let _ = edit::recolor_paths(&scene, std::slice::from_ref(&change));
+    // `covec edit` refuses what it cannot draw at canvas size before anything else.
+    if output::check_canvas(&scene, MAX_CANVAS_PIXELS).is_err() {
+        return;
     }
+    for change in changes {
+        if let Ok(edited) = edit::recolor_paths(&scene, std::slice::from_ref(&change)) {
+            // `covec edit --preview`: the edited scene drawn at its canvas size.
+            let _ = output::artefacts(&edited.scene, &[FileKind::Preview]);
+        }
+    }
+    // `covec edit --reference` without `--original`: the scene's composite is the original.
+    let original = composite(&scene);
+    let mut reference = original.clone();
+    reference
+        .data
+        .iter_mut()
+        .step_by(7)
+        .for_each(|v| *v = 1.0 - *v);
+    let _ = edit::recolor_by_reference(&scene, &original, &reference, &ReferenceParams::default());
 });
