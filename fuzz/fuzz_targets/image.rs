@@ -1,5 +1,6 @@
 //! Image, mask and label-map decoding (`covec::imageio`), as the CLI and the service call it,
-//! then the conversion every stage starts from. The first byte picks the decoder.
+//! then the conversion every stage starts from. The first byte picks the decoder and whether a
+//! JPEG cut short is accepted.
 #![no_main]
 
 use covec::imageio::{self, Limits};
@@ -13,6 +14,7 @@ fuzz_target!(|data: &[u8]| {
     let limits = Limits {
         max_pixels: 1 << 18,
         max_masks: 16,
+        accept_truncated: which & 0x80 != 0,
     };
     match which % 3 {
         0 => {

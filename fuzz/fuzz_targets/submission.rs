@@ -1,6 +1,6 @@
 //! The body of `POST /v1/jobs` (multipart form or JSON with base64 images) through the
 //! service's own reader and input decoding (`covec::service::fuzzing::submission`). The first
-//! byte picks the content type; a refusal must be a 4xx, never a panic or a 5xx.
+//! byte picks the content type and `accept_truncated`; a refusal must be a 4xx, never a panic or a 5xx.
 #![no_main]
 
 use std::sync::LazyLock;
@@ -39,7 +39,8 @@ fuzz_target!(|data: &[u8]| {
         max_decoded_bytes: 8 << 20,
         ..InputLimits::default()
     };
-    if let Err(status) = RUNTIME.block_on(fuzzing::submission(request, &limits)) {
+    let accept_truncated = which & 0x80 != 0;
+    if let Err(status) = RUNTIME.block_on(fuzzing::submission(request, &limits, accept_truncated)) {
         assert!(status.is_client_error(), "refused with {status}");
     }
 });

@@ -8,8 +8,12 @@ use super::submit::{self, InputLimits};
 
 /// `POST /v1/jobs` up to the job record: reads the body (multipart or JSON with base64), checks
 /// the parameters and decodes the inputs, as [`super::jobs`] does. `Err` is the status the
-/// request would have been refused with.
-pub async fn submission(request: Request, limits: &InputLimits) -> Result<(), StatusCode> {
+/// request would have been refused with; `accept_truncated` is the query parameter.
+pub async fn submission(
+    request: Request,
+    limits: &InputLimits,
+    accept_truncated: bool,
+) -> Result<(), StatusCode> {
     let submission = submit::read(request, limits)
         .await
         .map_err(|error| error.status())?;
@@ -19,6 +23,7 @@ pub async fn submission(request: Request, limits: &InputLimits) -> Result<(), St
         &submission.masks,
         submission.labels.as_deref(),
         limits,
+        accept_truncated,
     )
     .map_err(|error| error.status())?;
     Ok(())
