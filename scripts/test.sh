@@ -28,6 +28,11 @@ fi
 scripts/setup-renderers.sh
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
 
+# Every fuzz target for a short, bounded time (README, "Fuzzing"). COVEC_SKIP_FUZZ=1 skips it.
+if [[ -z "${COVEC_SKIP_FUZZ:-}" ]]; then
+    scripts/fuzz.sh 20
+fi
+
 # The web page end to end (issue 7): headless Debian Chromium driven by playwright-core against a
 # real `covec serve` on a free loopback port with a fresh data directory. Screenshots go to
 # tests/artifacts/browser/. COVEC_SKIP_BROWSER=1 skips it.

@@ -89,12 +89,12 @@ fn raster_size(
     width: Option<u32>,
     max_pixels: u64,
 ) -> Result<(u32, u32), RasterError> {
+    if scene.width == 0 || scene.height == 0 {
+        return Err(RasterError::EmptyCanvas);
+    }
     let width = width.unwrap_or(scene.original_width);
     if width == 0 {
         return Err(RasterError::ZeroWidth);
-    }
-    if scene.width == 0 || scene.height == 0 {
-        return Err(RasterError::EmptyCanvas);
     }
     let height = (f64::from(scene.height) * f64::from(width) / f64::from(scene.width))
         .round()
@@ -108,6 +108,13 @@ fn raster_size(
         });
     }
     Ok((width, height))
+}
+
+/// Refuses a scene whose working canvas is empty or over `max_pixels`: drawing a scene at its
+/// own size (an edit's composite and preview) needs neither. Scenes from files are checked
+/// through here (`covec edit`); the service reads only scenes it wrote.
+pub fn check_canvas(scene: &Scene, max_pixels: u64) -> Result<(), RasterError> {
+    raster_size(scene, Some(scene.width), max_pixels).map(|_| ())
 }
 
 /// PNG of `scene` as shown, `width` pixels wide (default: the original image's width; the height

@@ -79,6 +79,13 @@ pub enum Error {
 
 pub fn run(args: &Args) -> Result<(), Error> {
     let scene = io::read_scene(&args.scene)?;
+    // An edit draws the scene at its canvas size (the default original, the preview).
+    output::check_canvas(&scene, Limits::default().max_pixels).map_err(|source| {
+        IoError::Canvas {
+            path: args.scene.clone(),
+            source,
+        }
+    })?;
     let edit = match &args.reference {
         Some(reference) => {
             let params = ReferenceParams {

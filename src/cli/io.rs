@@ -29,6 +29,8 @@ pub enum IoError {
     },
     #[error("cannot write {path}: {source}")]
     Raster { path: PathBuf, source: RasterError },
+    #[error("{path}: {source}")]
+    Canvas { path: PathBuf, source: RasterError },
 }
 
 pub fn read(path: &Path) -> Result<Vec<u8>, IoError> {

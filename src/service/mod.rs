@@ -12,6 +12,8 @@ mod auth;
 mod conn;
 mod edits;
 mod error;
+#[doc(hidden)]
+pub mod fuzzing;
 mod jobs;
 mod model;
 mod ops;

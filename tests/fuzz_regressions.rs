@@ -1,0 +1,46 @@
+//! Inputs that crashed (or would crash) a fuzz target (`fuzz/`, README "Fuzzing"), kept from
+//! `tests/fuzz_regressions/` and replayed through the code that failed on them.
+#![cfg(all(feature = "cli", feature = "service"))]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn input(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fuzz_regressions")
+        .join(name)
+}
+
+/// Scenes whose canvas is empty (0×0: the preview's PNG encoder panicked), 100 000² (the
+/// composite asked for 120 GB) or u32::MAX² (the pixel count overflowed): `covec edit`, which
+/// draws the scene at its canvas size, refuses each with one line instead.
+#[test]
+fn edit_refuses_scenes_it_cannot_draw() {
+    let out_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz_regressions");
+    std::fs::create_dir_all(&out_dir).unwrap();
+    for (name, needle) in [
+        ("scene-empty-canvas.json", "canvas has no pixels"),
+        ("scene-huge-canvas.json", "more than the limit"),
+        ("scene-max-canvas.json", "more than the limit"),
+    ] {
+        let path = input(name);
+        let scene: covec::Scene = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        assert!(
+            covec::output::check_canvas(&scene, 40_000_000).is_err(),
+            "{name}"
+        );
+        let out = Command::new(env!("CARGO_BIN_EXE_covec"))
+            .arg("edit")
+            .arg(&path)
+            .args(["--set", "albedo-0=#ff0000", "-o"])
+            .arg(out_dir.join("edited.svg"))
+            .arg("--preview")
+            .arg(out_dir.join("edited.png"))
+            .output()
+            .expect("covec runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{name}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{name}: {stderr}");
+        assert!(stderr.contains(needle), "{name}: {stderr}");
+    }
+}
