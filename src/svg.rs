@@ -162,18 +162,7 @@ pub fn path_data(path: &Path, decimals: u32) -> String {
             .enumerate()
             .map(|(i, &v)| v - current[i % 2])
             .collect();
-        let [abs, rel] = ['C', 'c'].map(|command| {
-            let mut candidate = data.continuation();
-            candidate.command(command);
-            let values = if command == 'C' { &absolute } else { &relative };
-            candidate.numbers(values, decimals);
-            candidate
-        });
-        data.append(if rel.text.len() <= abs.text.len() {
-            rel
-        } else {
-            abs
-        });
+        data.append_shorter(('C', &absolute), ('c', &relative), decimals);
         current = end;
     }
     data.command('Z');
@@ -205,17 +194,7 @@ fn polygon_data(region: &Region, decimals: u32) -> String {
         let mut current = vertices[0];
         for &v in &vertices[1..] {
             let relative = [v[0] - current[0], v[1] - current[1]];
-            let [abs, rel] = [('L', v), ('l', relative)].map(|(command, values)| {
-                let mut candidate = data.continuation();
-                candidate.command(command);
-                candidate.numbers(&values, decimals);
-                candidate
-            });
-            data.append(if rel.text.len() <= abs.text.len() {
-                rel
-            } else {
-                abs
-            });
+            data.append_shorter(('L', &v), ('l', &relative), decimals);
             current = v;
         }
         data.command('Z');
@@ -251,6 +230,27 @@ impl PathData {
             command: self.command,
             last_number_has_dot: self.last_number_has_dot,
         }
+    }
+
+    /// Appends the shorter of one command in its absolute and relative forms (relative on a
+    /// tie).
+    fn append_shorter(
+        &mut self,
+        absolute: (char, &[i64]),
+        relative: (char, &[i64]),
+        decimals: u32,
+    ) {
+        let [abs, rel] = [absolute, relative].map(|(command, values)| {
+            let mut candidate = self.continuation();
+            candidate.command(command);
+            candidate.numbers(values, decimals);
+            candidate
+        });
+        self.append(if rel.text.len() <= abs.text.len() {
+            rel
+        } else {
+            abs
+        });
     }
 
     /// Appends a continuation made by [`PathData::continuation`].
