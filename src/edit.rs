@@ -159,6 +159,12 @@ pub fn recolor_paths(scene: &Scene, changes: &[ColorChange]) -> Result<Edit, Edi
 /// mean light under the path, divided by the mean shade under it (the paper divides only; with
 /// `I = A·S + L` the light must come off first), so the lighting stays; otherwise it is the
 /// reference colour.
+///
+/// Departure: a path's support S_n is the part of its silhouette no later albedo path covers
+/// (what the path paints), not the whole silhouette as in the paper. Under a stack of opaque
+/// paths the silhouette of the full-canvas base holds every edit, so with the paper's rule an
+/// edit of one object that is large enough recolours the base, and with it the background
+/// (issue 11: on a generated scene the K = 4 edit error 0.00244 → see README).
 pub fn recolor_by_reference(
     scene: &Scene,
     original: &Image,
@@ -205,10 +211,10 @@ pub fn recolor_by_reference(
         shade_mean: Option<[f32; 3]>,
         light_mean: [f32; 3],
     }
+    let owner = albedo_owner(&mut rasterizer, scene, width, height);
     let mut candidates = Vec::new();
-    let mut silhouette = Image::default();
-    for (index, path) in scene.albedo.paths.iter().enumerate() {
-        let mask = path_mask(&mut rasterizer, path, width, height, &mut silhouette);
+    for index in 0..scene.albedo.paths.len() {
+        let mask: Vec<bool> = owner.iter().map(|&o| o == Some(index)).collect();
         let area = mask.iter().filter(|&&m| m).count();
         if area == 0 {
             continue;
@@ -300,27 +306,36 @@ fn set_fill(id: PathId, path: &mut Path, color: [f32; 3], opacity: f32) -> Chang
     changed
 }
 
-/// The path's own silhouette (coverage ≥ ½), rendered alone as the paper does.
-fn path_mask(
+/// Per pixel, the topmost albedo path whose silhouette (coverage ≥ ½, the path rendered alone
+/// as the paper does) holds it.
+fn albedo_owner(
     rasterizer: &mut Rasterizer,
-    path: &Path,
+    scene: &Scene,
     width: usize,
     height: usize,
-    scratch: &mut Image,
-) -> Vec<bool> {
-    let silhouette = Path {
-        points: path.points.clone(),
-        color: [1.0; 3],
-        opacity: 1.0,
-    };
-    rasterizer.render(
-        std::slice::from_ref(&silhouette),
-        [0.0; 3],
-        width,
-        height,
-        scratch,
-    );
-    scratch.data.chunks_exact(3).map(|p| p[0] >= 0.5).collect()
+) -> Vec<Option<usize>> {
+    let mut owner = vec![None; width * height];
+    let mut scratch = Image::default();
+    for (index, path) in scene.albedo.paths.iter().enumerate() {
+        let silhouette = Path {
+            points: path.points.clone(),
+            color: [1.0; 3],
+            opacity: 1.0,
+        };
+        rasterizer.render(
+            std::slice::from_ref(&silhouette),
+            [0.0; 3],
+            width,
+            height,
+            &mut scratch,
+        );
+        for (o, p) in owner.iter_mut().zip(scratch.data.chunks_exact(3)) {
+            if p[0] >= 0.5 {
+                *o = Some(index);
+            }
+        }
+    }
+    owner
 }
 
 fn masked_mean(image: &Image, mask: &[bool], area: usize) -> [f32; 3] {
@@ -446,5 +461,28 @@ mod tests {
             recolor_paths(&scene, &[outside]),
             Err(EditError::NothingAt { .. })
         ));
+    }
+
+    #[test]
+    fn a_reference_edit_of_an_object_leaves_the_base_under_it() {
+        // The red square covers 16% of the canvas: the base's silhouette meets the edit
+        // (IoU 0.16) and its mean changes by 0.16 × the edit, so the paper's rule would
+        // recolour the background too; what the base paints does not change.
+        let scene = scene_with_two_squares();
+        let mut original = Image::default();
+        Rasterizer::new().render(&scene.albedo.paths, [0.0; 3], 20, 20, &mut original);
+        let mut reference = original.clone();
+        for y in 2..10 {
+            for x in 2..10 {
+                let i = 3 * (y * 20 + x);
+                reference.data[i..i + 3].copy_from_slice(&[0.0, 0.0, 1.0]);
+            }
+        }
+        let edit =
+            recolor_by_reference(&scene, &original, &reference, &ReferenceParams::default())
+                .unwrap();
+        let changed: Vec<String> = edit.changed.iter().map(|c| c.path.to_string()).collect();
+        assert_eq!(changed, ["albedo-1"]);
+        assert_eq!(edit.scene.albedo.paths[1].color, [0.0, 0.0, 1.0]);
     }
 }
