@@ -14,6 +14,8 @@
 //!    across the shadow's boundary. The tolerance widens in the dark, where chromaticity is noisy.
 //!    Where the sky is bluer than the sun, shadows are bluer than the lit side: that shift is
 //!    estimated once for the image and undone before comparing a darker piece with a lighter.
+//!    Two groups of one chromaticity on both sides of a third (a ball's stripes) are one
+//!    surface too, so each stripe takes its colour from the best-lit stripe of its kind.
 //! 4. **Highlights** (dichromatic model, Shafer 1985): a small bright group whose colour is its
 //!    neighbour's body colour plus a share of the (corrected, so white) illuminant is that
 //!    neighbour's specular highlight, and joins it; the excess goes to the light layer later.
@@ -36,8 +38,10 @@ const GREY_EDGE_P: i32 = 6;
 /// saturated scene (all foliage) from being read as a green light.
 const MIN_ILLUMINANT_CHANNEL: f32 = 0.25;
 /// Felzenszwalb granularity on the corrected image (colour distances in [0, √3]); finer than
-/// the segmentation's, since grouping joins the pieces again.
-const SUPERPIXEL_K: f32 = 0.25;
+/// the segmentation's, since grouping joins the pieces again. At 0.25 a dark superpixel could
+/// straddle an object's shaded rim and the contact shadow under it and keep its own dark
+/// albedo there (README, issue 11).
+const SUPERPIXEL_K: f32 = 0.15;
 /// Chromaticity angle (radians) under which two adjacent superpixels are one surface, plus
 /// [`DARK_TOLERANCE`] / luminance for noise in the dark.
 const CHROMA_TOLERANCE: f32 = 0.07;
@@ -259,6 +263,56 @@ impl Grouping {
     }
 }
 
+/// Whether two groups' mean colours may be one surface in light and shadow: luminances within
+/// [`MAX_SHADING_RATIO`], and chromaticities within [`CHROMA_TOLERANCE`] plus `widening`, or
+/// within [`CHROMA_TOLERANCE`] once the darker is relit by the shadow shift.
+fn one_surface(a: [f32; 3], b: [f32; 3], shift: Option<Shadow>, widening: f32) -> bool {
+    let (la, lb) = (intensity(a).max(0.02), intensity(b).max(0.02));
+    la.max(lb) / la.min(lb) <= MAX_SHADING_RATIO
+        && (angle(a, b) <= CHROMA_TOLERANCE + widening
+            || relit_angle(a, b, shift) <= CHROMA_TOLERANCE)
+}
+
+/// A group holding at least this share of a middle group's boundary is one of its sides.
+const INTERRUPTION_SIDE: u32 = 10;
+
+/// Joins groups of one surface that a third group interrupts (a ball's stripes, a wall behind
+/// a post): two groups that each hold at least 1/[`INTERRUPTION_SIDE`] of a middle group's
+/// boundary and pass [`one_surface`] at the strict tolerance.
+fn join_interrupted(
+    groups: &mut Grouping,
+    adjacent: &std::collections::BTreeMap<(usize, usize), u32>,
+    shift: Option<Shadow>,
+) {
+    let mut sides: std::collections::BTreeMap<usize, std::collections::BTreeMap<usize, u32>> =
+        Default::default();
+    for (&(a, b), &length) in adjacent {
+        let (ra, rb) = (groups.sets.find(a), groups.sets.find(b));
+        if ra != rb {
+            *sides.entry(ra).or_default().entry(rb).or_default() += length;
+            *sides.entry(rb).or_default().entry(ra).or_default() += length;
+        }
+    }
+    for around in sides.values() {
+        let total: u32 = around.values().sum();
+        let major: Vec<usize> = around
+            .iter()
+            .filter(|&(_, &length)| length * INTERRUPTION_SIDE >= total)
+            .map(|(&g, _)| g)
+            .collect();
+        for (k, &a) in major.iter().enumerate() {
+            for &c in &major[k + 1..] {
+                let (ra, rc) = (groups.sets.find(a), groups.sets.find(c));
+                if ra != rc
+                    && one_surface(groups.stats[ra].mean(), groups.stats[rc].mean(), shift, 0.0)
+                {
+                    groups.join(ra, rc);
+                }
+            }
+        }
+    }
+}
+
 /// Surface groups: a root per pixel.
 struct Groups {
     root: Vec<usize>,
@@ -312,14 +366,13 @@ fn group_surfaces(corrected: &Image, labels: &[u32], illuminant: [f32; 3]) -> Gr
             continue;
         }
         let (ma, mb) = (groups.stats[ra].mean(), groups.stats[rb].mean());
-        let (la, lb) = (intensity(ma).max(0.02), intensity(mb).max(0.02));
-        let tolerance = CHROMA_TOLERANCE + (DARK_TOLERANCE / la.min(lb)).min(MAX_DARK_EXTRA);
-        if la.max(lb) / la.min(lb) <= MAX_SHADING_RATIO
-            && (angle(ma, mb) <= tolerance || relit_angle(ma, mb, shift) <= CHROMA_TOLERANCE)
-        {
+        let darker = intensity(ma).min(intensity(mb)).max(0.02);
+        let widening = (DARK_TOLERANCE / darker).min(MAX_DARK_EXTRA);
+        if one_surface(ma, mb, shift, widening) {
             groups.join(ra, rb);
         }
     }
+    join_interrupted(&mut groups, &adjacent, shift);
     // Step 4, from the outside in: a highlight's rim joins its body first, then its core,
     // which only then touches the body.
     let canvas = (w * h) as f64;
