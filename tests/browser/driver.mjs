@@ -30,7 +30,7 @@ const ACTION_TIMEOUT_MS = 30_000;
 export async function launch(name, { executable, profile, downloads, viewport }) {
   const browser = BROWSERS[name];
   if (!browser) throw new Error(`unknown browser ${name}; known: ${Object.keys(BROWSERS).join(", ")}`);
-  const session = { name, downloads, viewport, scratch: fs.mkdtempSync(path.join(os.tmpdir(), "covec-web-test-files-")) };
+  const session = { downloads, scratch: fs.mkdtempSync(path.join(os.tmpdir(), "covec-web-test-files-")) };
   const handle = await puppeteer.launch({
     browser: browser.puppeteer,
     executablePath: executable || browser.executable,
@@ -210,14 +210,14 @@ class Page {
 
   /** A file path, or `{ name, buffer }` written to a scratch file of that name first. */
   async setInputFiles(selector, file) {
-    let file_path = file;
+    let filePath = file;
     if (typeof file !== "string") {
       const dir = fs.mkdtempSync(path.join(this.session.scratch, "upload-"));
-      file_path = path.join(dir, file.name);
-      fs.writeFileSync(file_path, file.buffer);
+      filePath = path.join(dir, file.name);
+      fs.writeFileSync(filePath, file.buffer);
     }
     const input = await this.page.waitForSelector(selector, { timeout: ACTION_TIMEOUT_MS });
-    await input.uploadFile(file_path);
+    await input.uploadFile(filePath);
   }
 }
 
