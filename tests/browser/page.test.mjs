@@ -152,6 +152,8 @@ async function startServer(binary, extraFlags = []) {
   });
   let exited = null;
   child.on("exit", (code, signal) => (exited = { code, signal }));
+  // Not left running if the test itself ends early (a broken pipe, an uncaught error).
+  process.once("exit", () => exited || child.kill("SIGKILL"));
   const url = `http://127.0.0.1:${port}`;
   const deadline = Date.now() + 30_000;
   while (Date.now() < deadline) {
