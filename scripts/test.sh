@@ -26,6 +26,7 @@ else
 fi
 
 scripts/setup-renderers.sh
+scripts/setup-clients.sh
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
 
 # Every fuzz target for a short, bounded time (README, "Fuzzing"). COVEC_SKIP_FUZZ=1 skips it.
@@ -33,9 +34,10 @@ if [[ -z "${COVEC_SKIP_FUZZ:-}" ]]; then
     scripts/fuzz.sh 20
 fi
 
-# The web page end to end (issue 7): headless Debian Chromium driven by playwright-core against a
-# real `covec serve` on a free loopback port with a fresh data directory. Screenshots go to
-# tests/artifacts/browser/. COVEC_SKIP_BROWSER=1 skips it.
+# The web page end to end (issue 7), the same test in headless Debian Chromium and Firefox ESR
+# (tests/browser/driver.mjs), each against a real `covec serve` on a free loopback port with a
+# fresh data directory. Screenshots go to tests/artifacts/browser/BROWSER/. COVEC_SKIP_BROWSER=1
+# skips it.
 if [[ -z "${COVEC_SKIP_BROWSER:-}" ]]; then
     scripts/setup-browser.sh
     covec_bin=$(cargo build --bin covec --message-format=json-render-diagnostics \
@@ -48,5 +50,10 @@ if [[ -z "${COVEC_SKIP_BROWSER:-}" ]]; then
     browser_tmp=$(mktemp -d)
     trap 'rm -rf "$browser_tmp"' EXIT
     cp "$covec_bin" "$browser_tmp/covec"
-    node tests/browser/page.test.mjs --covec "$browser_tmp/covec"
+    # Both browsers run even if the first fails.
+    browser_failed=0
+    for browser in chromium firefox; do
+        node tests/browser/page.test.mjs --covec "$browser_tmp/covec" --browser "$browser" || browser_failed=1
+    done
+    exit "$browser_failed"
 fi

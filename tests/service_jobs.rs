@@ -7,7 +7,11 @@ mod service_support;
 use std::time::Duration;
 
 use base64::Engine;
-use hyper::{Method, StatusCode};
+use http_body_util::{BodyExt, Full};
+use hyper::body::Bytes;
+use hyper::{Method, Request, StatusCode};
+use hyper_util::client::legacy::Client;
+use hyper_util::rt::TokioExecutor;
 use serde_json::json;
 use service_support::{DataDir, LONG_PARAMS, QUICK_PARAMS, Server, problem, test_png};
 
@@ -469,15 +473,76 @@ async fn stream(server: &Server, path: &str, last: Option<&str>) -> Vec<(String,
 /// (id, event name) of each event in an SSE body.
 fn event_ids(text: &str) -> Vec<(String, String)> {
     text.split("\n\n")
-        .filter_map(|block| {
-            let field = |name: &str| {
-                block
-                    .lines()
-                    .find_map(|line| line.strip_prefix(name).map(|v| v.trim().to_owned()))
-            };
-            Some((field("id:")?, field("event:")?))
-        })
+        .filter_map(parse_event)
+        .map(|event| (event.id, event.name))
         .collect()
+}
+
+/// One Server-Sent Event of a job's stream.
+#[derive(Debug)]
+struct StreamEvent {
+    id: String,
+    name: String,
+    data: serde_json::Value,
+}
+
+impl StreamEvent {
+    /// The sequence number in the id (`sequence.digest`).
+    fn sequence(&self) -> u64 {
+        self.id.split_once('.').unwrap().0.parse().unwrap()
+    }
+}
+
+/// One block of an SSE body as an event, or None for a keep-alive comment.
+fn parse_event(block: &str) -> Option<StreamEvent> {
+    let field = |name: &str| {
+        block
+            .lines()
+            .find_map(|line| line.strip_prefix(name).map(|v| v.trim().to_owned()))
+    };
+    Some(StreamEvent {
+        id: field("id:")?,
+        name: field("event:")?,
+        data: serde_json::from_str(&field("data:")?).unwrap(),
+    })
+}
+
+/// Reads a job's event stream as it comes (resuming after `last`), until `enough` holds for
+/// what arrived or the stream ends; then drops the connection, as a client losing it would.
+async fn read_stream(
+    server: &Server,
+    path: &str,
+    last: Option<&str>,
+    enough: impl Fn(&[StreamEvent]) -> bool,
+) -> Vec<StreamEvent> {
+    let client = Client::builder(TokioExecutor::new()).build_http::<Full<Bytes>>();
+    let mut request = Request::get(format!("{}{path}", server.base));
+    if let Some(last) = last {
+        request = request.header("last-event-id", last);
+    }
+    let response = client
+        .request(request.body(Full::new(Bytes::new())).unwrap())
+        .await
+        .unwrap();
+    assert_eq!(response.status(), StatusCode::OK);
+    let mut body = response.into_body();
+    let (mut text, mut events) = (String::new(), Vec::new());
+    while !enough(&events) {
+        let Some(frame) = tokio::time::timeout(PATIENCE, body.frame())
+            .await
+            .expect("an event or the stream's end in time")
+        else {
+            break;
+        };
+        if let Ok(data) = frame.unwrap().into_data() {
+            text.push_str(std::str::from_utf8(&data).unwrap());
+        }
+        while let Some(end) = text.find("\n\n") {
+            let block: String = text.drain(..end + 2).collect();
+            events.extend(parse_event(&block));
+        }
+    }
+    events
 }
 
 #[tokio::test]
@@ -503,6 +568,61 @@ async fn a_resumed_event_stream_repeats_nothing_and_misses_nothing() {
     );
     // A malformed id is ignored.
     assert_eq!(stream(&server, &path, Some("soon")).await, first);
+}
+
+#[tokio::test]
+async fn a_stream_dropped_while_the_job_runs_resumes_without_repeats_or_gaps() {
+    let dir = DataDir::new("resume-running");
+    let mut args = vec!["--workers", "1"];
+    args.extend_from_slice(BIG_BUDGET);
+    let server = Server::start(&dir.0, &args);
+    let id = submit_long(&server).await;
+    let path = format!("/v1/jobs/{id}/events");
+    let running = |events: &[StreamEvent]| {
+        events
+            .iter()
+            .filter(|event| event.data["status"] == "running")
+            .count()
+    };
+    // The connection drops after two events of the running job; the job goes on meanwhile.
+    let before = read_stream(&server, &path, None, |events| running(events) >= 2).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let last = before.last().unwrap();
+    // Resumed from the last id received; the job is canceled a second later, which ends it.
+    let (after, ()) = tokio::join!(
+        read_stream(&server, &path, Some(&last.id), |_| false),
+        async {
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            let canceled = server.cancel(&id).await;
+            assert!(canceled.status.is_success(), "{}", canceled.text());
+        }
+    );
+    assert!(
+        running(&after) >= 1,
+        "no progress after resuming: {after:?}"
+    );
+
+    let all: Vec<_> = before.iter().chain(&after).collect();
+    // No gap in the numbering: the resumed stream goes on from the id it was given.
+    let sequences: Vec<_> = all.iter().map(|event| event.sequence()).collect();
+    assert_eq!(sequences, (0..all.len() as u64).collect::<Vec<_>>());
+    // Nothing repeated: the first resumed event is a state the client did not have yet, and
+    // progress only moves forward.
+    assert_ne!(
+        last.data, after[0].data,
+        "the resumed stream repeated the last state"
+    );
+    for pair in all.windows(2) {
+        let elapsed = |event: &StreamEvent| event.data["progress"]["elapsed_seconds"].as_f64();
+        assert!(elapsed(pair[0]) <= elapsed(pair[1]), "{pair:?}");
+    }
+    // Nothing missed: the stream ends with the job's final state, once.
+    let names: Vec<_> = all.iter().map(|event| event.name.as_str()).collect();
+    assert_eq!(names.iter().filter(|name| **name == "completed").count(), 1);
+    assert_eq!(names.last(), Some(&"completed"));
+    let final_state = server.get(&format!("/v1/jobs/{id}")).await.json();
+    assert_eq!(final_state["status"], "canceled");
+    assert_eq!(all.last().unwrap().data, final_state);
 }
 
 #[tokio::test]

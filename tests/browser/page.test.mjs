@@ -1,15 +1,16 @@
-// End-to-end test of covec's web page (issue 7) in headless Debian Chromium, driven by
-// playwright-core. It starts a real `covec serve` on a free loopback port with a fresh data
+// End-to-end test of covec's web page (issue 7) in headless Debian Chromium or Firefox ESR,
+// driven by puppeteer-core (driver.mjs: the same test body in both). It starts a real `covec serve` on a free loopback port with a fresh data
 // directory (or uses --url), uploads tests/fixtures/web_astronaut.png with a small budget, and
 // checks what a person would see: progress and stage previews, the result, that each layer
 // toggle changes the pixels, a recolour through the edits API and its undo, the downloads
-// (byte for byte the API's files), and that Chromium's rendering of the inlined SVG matches
+// (byte for byte the API's files), and that the browser's rendering of the inlined SVG matches
 // covec's own renderer (the job's final composite preview) to a mean of 1.5/255.
 //
-//   node tests/browser/page.test.mjs --covec target/release/covec [--artifacts tests/artifacts]
+//   node tests/browser/page.test.mjs --covec target/release/covec [--browser firefox] [--artifacts DIR]
 //   node tests/browser/page.test.mjs --url http://127.0.0.1:8080
 //
-// Screenshots of every step go to tests/artifacts/browser/. Ends with "N passed, N failed".
+// --browser is chromium (the default) or firefox. Screenshots of every step go to
+// tests/artifacts/browser/BROWSER/. Ends with "N passed, N failed".
 
 import { spawn } from "node:child_process";
 import { createHash } from "node:crypto";
@@ -20,7 +21,7 @@ import path from "node:path";
 import { fileURLToPath } from "node:url";
 import { parseArgs } from "node:util";
 
-import { chromium } from "playwright-core";
+import { BROWSERS, launch } from "./driver.mjs";
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const repo = path.resolve(here, "../..");
@@ -29,14 +30,21 @@ const { values: args } = parseArgs({
   options: {
     covec: { type: "string" },
     url: { type: "string" },
-    artifacts: { type: "string", default: path.join(repo, "tests/artifacts/browser") },
-    chromium: { type: "string", default: "/usr/bin/chromium" },
+    browser: { type: "string", default: "chromium" },
+    /** The browser's executable, if not Debian's (driver.mjs, BROWSERS). */
+    executable: { type: "string" },
+    artifacts: { type: "string" },
   },
 });
-if (!args.covec === !args.url) {
-  console.error("usage: page.test.mjs (--covec PATH_TO_BINARY | --url http://HOST:PORT) [--artifacts DIR]");
+if (!args.covec === !args.url || !BROWSERS[args.browser]) {
+  console.error(
+    `usage: page.test.mjs (--covec PATH_TO_BINARY | --url http://HOST:PORT) [--browser ${Object.keys(BROWSERS).join("|")}] [--artifacts DIR]`,
+  );
   process.exit(2);
 }
+args.artifacts ??= path.join(repo, "tests/artifacts/browser", args.browser);
+/** The browser's name as the steps say it. */
+const BROWSER_NAME = { chromium: "Chromium", firefox: "Firefox" }[args.browser];
 
 const FIXTURE = path.join(repo, "tests/fixtures/web_astronaut.png");
 /** Whether the API document has the edits route (issue 6); then the recolour steps are required. */
@@ -144,6 +152,8 @@ async function startServer(binary, extraFlags = []) {
   });
   let exited = null;
   child.on("exit", (code, signal) => (exited = { code, signal }));
+  // Not left running if the test itself ends early (a broken pipe, an uncaught error).
+  process.once("exit", () => exited || child.kill("SIGKILL"));
   const url = `http://127.0.0.1:${port}`;
   const deadline = Date.now() + 30_000;
   while (Date.now() < deadline) {
@@ -253,27 +263,13 @@ async function main() {
   const downloads = fs.mkdtempSync(path.join(os.tmpdir(), "covec-web-test-downloads-"));
   let context;
   try {
-    context = await chromium.launchPersistentContext(profile, {
-      executablePath: args.chromium,
-      headless: true,
-      args: [
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-        "--disable-quic",
-        "--hide-scrollbars",
-        "--force-color-profile=srgb",
-      ],
+    context = await launch(args.browser, {
+      executable: args.executable,
+      profile,
+      downloads,
       viewport: { width: 1280, height: 900 },
-      deviceScaleFactor: 1,
-      acceptDownloads: true,
-      downloadsPath: downloads,
-      colorScheme: "light",
-      reducedMotion: "reduce",
     });
+    facts.browser = context.version;
     await run(context, server.url);
   } catch {
     // already reported by step()
@@ -288,7 +284,7 @@ async function main() {
   const failed = results.length - passed - skipped;
   console.log(`facts: ${JSON.stringify(facts)}`);
   console.log(`screenshots: ${args.artifacts}`);
-  console.log(`${passed} passed, ${failed} failed${skipped ? `, ${skipped} skipped` : ""}`);
+  console.log(`${args.browser}: ${passed} passed, ${failed} failed${skipped ? `, ${skipped} skipped` : ""}`);
   process.exit(failed === 0 && passed > 0 ? 0 : 1);
 }
 
@@ -311,8 +307,9 @@ async function run(context, base) {
     if (response.status() >= 400 && !rejectedUpload) problems.push(`${response.status()} for ${response.url()}`);
   });
   page.on("requestfailed", (request) => {
-    // The page closes a job's event stream itself once it knows the job ended.
-    const closedStream = /\/events$/.test(request.url()) && request.failure()?.errorText === "net::ERR_ABORTED";
+    // The page closes a job's event stream itself once it knows the job ended (Chromium and
+    // Firefox name the abort so).
+    const closedStream = /\/events$/.test(request.url()) && /^(net::ERR_ABORTED|NS_BINDING_ABORTED)$/.test(request.failure()?.errorText);
     if (!closedStream) problems.push(`request failed: ${request.url()} ${request.failure()?.errorText}`);
   });
   let shot = 0;
@@ -325,18 +322,28 @@ async function run(context, base) {
   const svg = page.locator("#svg-host > svg");
   /**
    * The vector image's own pixels, without the pick outline drawn over it: a clip of the SVG's
-   * size snapped to whole pixels.
+   * size. The SVG is first moved (relatively positioned, not transformed: Chromium draws a
+   * fractional transform between pixels) to whole pixels of the document and scrolled there, to
+   * the viewport's top, so that every capture sees covec's renderer's pixel grid. Left at its
+   * fractional place, Firefox drew it up to a pixel off (a mean difference of 4.5/255 to the
+   * renderer, and an undo that "differed").
    */
   const svgPixels = async () => {
     await page.evaluate(() => (document.getElementById("pick-overlay").style.visibility = "hidden"));
-    // The same scroll position every time (image at the viewport's top), so that every capture
-    // sees the same pixel grid.
-    await svg.evaluate((e) => e.scrollIntoView({ block: "start", behavior: "instant" }));
+    await svg.evaluate((e) => {
+      window.scrollTo({ left: 0, top: 0, behavior: "instant" });
+      const box = e.getBoundingClientRect();
+      e.style.position = "relative";
+      e.style.left = `${Math.ceil(box.left) - box.left}px`;
+      e.style.top = `${Math.ceil(box.top) - box.top}px`;
+      window.scrollTo({ left: 0, top: Math.ceil(box.top), behavior: "instant" });
+    });
     const box = await svg.boundingBox(); // viewport coordinates, as the clip wants them
     const size = await svg.evaluate((e) => [e.clientWidth, e.clientHeight]);
     const clip = { x: Math.round(box.x), y: Math.round(box.y), width: size[0], height: size[1] };
-    const png = await page.screenshot({ clip, animations: "disabled", caret: "hide" });
+    const png = await page.screenshot({ clip });
     await page.evaluate(() => document.getElementById("pick-overlay").style.removeProperty("visibility"));
+    await svg.evaluate((e) => ["position", "left", "top"].forEach((property) => e.style.removeProperty(property)));
     return png;
   };
 
@@ -471,7 +478,7 @@ async function run(context, base) {
   });
 
   let composite;
-  await step("Chromium's rendering matches covec's renderer (final composite preview)", async () => {
+  await step(`${BROWSER_NAME}'s rendering matches covec's renderer (final composite preview)`, async () => {
     const name = facts.previews.filter((n) => /composite/.test(n)).at(-1);
     check(name, `no composite among previews ${facts.previews.join(", ")}`);
     const reference = await apiBytes(base, `/v1/jobs/${job.id}/previews/${encodeURIComponent(name)}.png`);
@@ -486,7 +493,7 @@ async function run(context, base) {
       { width, height },
     );
     const shown = await svgPixels();
-    fs.writeFileSync(path.join(args.artifacts, "parity-chromium.png"), shown);
+    fs.writeFileSync(path.join(args.artifacts, `parity-${args.browser}.png`), shown);
     fs.writeFileSync(path.join(args.artifacts, "parity-covec.png"), reference);
     const diff = await pixels.diff(shown, reference);
     check(!diff.error, diff.error);
