@@ -289,28 +289,7 @@ ui.form.addEventListener("submit", async (event) => {
     const response = await api("/v1/jobs", { method: "POST", body: request.body });
     if (!response.ok) {
       showError(ui.formError, `The server rejected the image. ${await problemMessage(response)}`);
-      /**
- * With a key, a plain link would be refused (it sends no header): fetch the file with the key
- * and save it through a blob: URL instead.
- */
-async function download(event, link, href) {
-  if (!ui.apiKey.value.trim()) return;
-  event.preventDefault();
-  try {
-    const url = await blobUrl(href);
-    const save = document.createElement("a");
-    save.href = url;
-    save.download = link.download;
-    document.body.append(save);
-    save.click();
-    save.remove();
-    setTimeout(() => URL.revokeObjectURL(url), 60_000);
-  } catch (error) {
-    showError(ui.jobError, `The download failed. ${error.message}`);
-  }
-}
-
-setState("idle");
+      setState("idle");
       return;
     }
     const job = await response.json();
@@ -320,28 +299,7 @@ setState("idle");
     follow(job);
   } catch (error) {
     showError(ui.formError, `Could not reach the server: ${error.message}`);
-    /**
- * With a key, a plain link would be refused (it sends no header): fetch the file with the key
- * and save it through a blob: URL instead.
- */
-async function download(event, link, href) {
-  if (!ui.apiKey.value.trim()) return;
-  event.preventDefault();
-  try {
-    const url = await blobUrl(href);
-    const save = document.createElement("a");
-    save.href = url;
-    save.download = link.download;
-    document.body.append(save);
-    save.click();
-    save.remove();
-    setTimeout(() => URL.revokeObjectURL(url), 60_000);
-  } catch (error) {
-    showError(ui.jobError, `The download failed. ${error.message}`);
-  }
-}
-
-setState("idle");
+    setState("idle");
   } finally {
     ui.submit.disabled = false;
   }
@@ -823,6 +781,15 @@ function fillDownloads() {
     [version.svgUrl, `${stem}.svg`, version.id ? "Layered SVG (with your colours)" : "Layered SVG"],
     [version.sceneUrl, `${stem}.scene.json`, "Scene JSON"],
   ];
+  // The job's picture for programs without the SVG's blend modes, and at a fixed size; the
+  // service makes these from the job's scene, not an edit's.
+  const jobStem = `covec-${session.job.id}`;
+  const before = version.id ? " (before recolouring)" : "";
+  links.push(
+    [jobPath(session.job, "/svg?flatten=true"), `${jobStem}-flat.svg`, `Flattened SVG${before}`],
+    [jobPath(session.job, "/pdf"), `${jobStem}.pdf`, `PDF${before}`],
+    [jobPath(session.job, "/png"), `${jobStem}.png`, `PNG${before}`],
+  );
   // An edit recolours albedo paths only: the job's shade and light layers stay current.
   const layerUrls = version.layerUrls || original.layerUrls;
   for (const name of LAYERS) {
