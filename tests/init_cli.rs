@@ -425,7 +425,86 @@ fn png_outputs_refuse_bad_widths_in_one_line() {
         covec(&all)
     };
     assert_one_line_error(&render(&["--width", "100000"]), "more than the limit");
-    assert_one_line_error(&render(&["-o", svg.to_str().unwrap()]), "writes PNG");
+    assert_one_line_error(&render(&["-o", "a.txt"]), "no format");
+    assert_one_line_error(
+        &render(&["-o", svg.to_str().unwrap(), "--width", "9"]),
+        "--width",
+    );
     let out = covec(&["render", APPLE]);
     assert_one_line_error(&out, "is not a covec scene");
+}
+
+#[test]
+fn standard_input_and_output_and_the_format_from_extension_or_flag() {
+    let dir = scratch("stdio");
+    let apple = std::fs::read(APPLE).unwrap();
+    // `covec vectorize` at a tiny size in `dir`, the apple on standard input.
+    let run = |args: &[&str]| {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_covec"))
+            .arg("vectorize")
+            .args(args)
+            .args(["--max-size", "16", "--paths", "8"])
+            .current_dir(&dir)
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut stdin = child.stdin.take().unwrap();
+        // A command that does not read its input may close it early.
+        let _ = std::io::Write::write_all(&mut stdin, &apple);
+        drop(stdin);
+        child.wait_with_output().unwrap()
+    };
+    let ok = |out: Output| {
+        assert!(out.status.success(), "{}", stderr(&out));
+        out.stdout
+    };
+
+    // In and out through the standard streams: the layered SVG, and no file written.
+    let svg = ok(run(&["-", "-o", "-"]));
+    assert!(std::fs::read_dir(&dir).unwrap().next().is_none());
+    let file = dir.join("apple.svg");
+    ok(run(&[APPLE, "-o", file.to_str().unwrap()]));
+    assert_eq!(svg, std::fs::read(&file).unwrap());
+    // Without -o, a standard input goes to standard output.
+    assert_eq!(ok(run(&["-"])), svg);
+
+    // The format from --format, or from the extension.
+    let scene = ok(run(&["-", "-o", "-", "--format", "json"]));
+    assert_eq!(scene, std::fs::read(dir.join("apple.json")).unwrap());
+    assert!(ok(run(&["-", "--format", "pdf"])).starts_with(b"%PDF-"));
+    assert!(ok(run(&["-", "--format", "png"])).starts_with(b"\x89PNG"));
+    let flat = String::from_utf8(ok(run(&["-", "--flatten"]))).unwrap();
+    assert!(
+        flat.starts_with("<svg") && !flat.contains("blend"),
+        "{flat}"
+    );
+    let only_scene = dir.join("only.json");
+    assert!(ok(run(&["-", "-o", only_scene.to_str().unwrap()])).is_empty());
+    assert_eq!(std::fs::read(&only_scene).unwrap(), scene);
+    assert!(!dir.join("only.svg").exists());
+    let pdf = dir.join("picture.pdf");
+    ok(run(&["-", "-o", pdf.to_str().unwrap()]));
+    assert!(std::fs::read(&pdf).unwrap().starts_with(b"%PDF-"));
+    let forced = dir.join("forced.svg");
+    ok(run(&[
+        "-",
+        "-o",
+        forced.to_str().unwrap(),
+        "--format",
+        "png",
+    ]));
+    assert!(std::fs::read(&forced).unwrap().starts_with(b"\x89PNG"));
+
+    let json = only_scene.to_str().unwrap();
+    // `covec render` makes the same files from the saved scene.
+    for (format, file) in [("pdf", &pdf), ("svg", &file)] {
+        let out = covec(&["render", json, "-o", "-", "--format", format]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        assert_eq!(out.stdout, std::fs::read(file).unwrap(), "{format}");
+    }
+    assert_one_line_error(&run(&["-", "-o", json, "--json", "x.json"]), "--json");
+    assert_one_line_error(&run(&["-", "--format", "png", "--flatten"]), "--flatten");
+    assert_one_line_error(&run(&["-", APPLE, "-o", "out"]), "standard input");
 }

@@ -626,7 +626,7 @@ async fn a_stream_dropped_while_the_job_runs_resumes_without_repeats_or_gaps() {
 }
 
 #[tokio::test]
-async fn png_renders_at_any_width_as_the_cli_does_within_the_pixel_limit() {
+async fn png_flattened_svg_and_pdf_are_served_as_the_cli_makes_them() {
     let dir = DataDir::new("png");
     let mut args = vec!["--workers", "1", "--max-pixels", "20000"];
     args.extend_from_slice(BIG_BUDGET);
@@ -635,11 +635,14 @@ async fn png_renders_at_any_width_as_the_cli_does_within_the_pixel_limit() {
 
     // Not before the job has succeeded, as for the other results.
     let long = submit_long(&server).await;
-    let early = server.get(&format!("/v1/jobs/{long}/png?width=10")).await;
-    assert_eq!(
-        code(&early),
-        (StatusCode::CONFLICT, json!("job-not-succeeded"))
-    );
+    for result in ["png?width=10", "svg?flatten=true", "pdf"] {
+        let early = server.get(&format!("/v1/jobs/{long}/{result}")).await;
+        assert_eq!(
+            code(&early),
+            (StatusCode::CONFLICT, json!("job-not-succeeded")),
+            "{result}"
+        );
+    }
     let canceled = server.cancel(&long).await;
     // 200 when it was still queued (canceled at once), 202 when it was running.
     assert!(
@@ -661,6 +664,7 @@ async fn png_renders_at_any_width_as_the_cli_does_within_the_pixel_limit() {
 
     // The same bytes as `covec render` of the job's scene at that width.
     let scene = server.get(&format!("/v1/jobs/{id}/scene.json")).await;
+    let scene_bytes = scene.body.clone();
     let (scene_path, cli_png) = (dir.0.with_extension("json"), dir.0.with_extension("png"));
     std::fs::write(&scene_path, &scene.body).unwrap();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_covec"))
@@ -705,4 +709,77 @@ async fn png_renders_at_any_width_as_the_cli_does_within_the_pixel_limit() {
         ),
         (json!(20000), json!(40000))
     );
+
+    // The flattened SVG and the PDF: the same bytes as `covec` writes from the job's scene.
+    let flat = server.get(&format!("/v1/jobs/{id}/svg?flatten=true")).await;
+    assert_eq!(
+        (flat.status, flat.header("content-type")),
+        (StatusCode::OK, Some("image/svg+xml"))
+    );
+    let flat_text = flat.text();
+    roxmltree::Document::parse(&flat_text).expect("well-formed flattened SVG");
+    assert!(!flat_text.contains("blend") && !flat_text.contains("opacity"));
+    let pdf = server.get(&format!("/v1/jobs/{id}/pdf")).await;
+    assert_eq!(
+        (pdf.status, pdf.header("content-type")),
+        (StatusCode::OK, Some("application/pdf"))
+    );
+    let scene: covec::scene::Scene = serde_json::from_slice(&scene.body).unwrap();
+    let expected = covec::output::artefacts(
+        &scene,
+        &[
+            covec::output::FileKind::FlatSvg,
+            covec::output::FileKind::Pdf,
+        ],
+    );
+    assert_eq!(flat.body.to_vec(), expected[0].bytes);
+    assert_eq!(pdf.body.to_vec(), expected[1].bytes);
+    for flatten in ["yes", "2", ""] {
+        let bad = server
+            .get(&format!("/v1/jobs/{id}/svg?flatten={flatten}"))
+            .await;
+        assert_eq!(
+            code(&bad),
+            (StatusCode::BAD_REQUEST, json!("bad-query")),
+            "flatten={flatten}"
+        );
+    }
+
+    // Compressed when the client accepts gzip: SVG, JSON and PDF, not PNG or event streams.
+    let gzip = [("accept-encoding", "gzip")];
+    for (result, plain) in [
+        ("svg?flatten=true", &flat.body),
+        ("scene.json", &scene_bytes),
+        ("pdf", &pdf.body),
+    ] {
+        let reply = server
+            .request(
+                Method::GET,
+                &format!("/v1/jobs/{id}/{result}"),
+                &gzip,
+                Vec::new(),
+            )
+            .await;
+        assert_eq!(reply.header("content-encoding"), Some("gzip"), "{result}");
+        let mut unpacked = Vec::new();
+        std::io::Read::read_to_end(
+            &mut flate2::read::GzDecoder::new(&reply.body[..]),
+            &mut unpacked,
+        )
+        .unwrap();
+        assert_eq!(&unpacked[..], &plain[..], "{result}");
+        assert!(reply.body.len() < plain.len(), "{result}");
+    }
+    for result in ["png?width=40", "events"] {
+        let reply = server
+            .request(
+                Method::GET,
+                &format!("/v1/jobs/{id}/{result}"),
+                &gzip,
+                Vec::new(),
+            )
+            .await;
+        assert_eq!(reply.status, StatusCode::OK, "{result}");
+        assert_eq!(reply.header("content-encoding"), None, "{result}");
+    }
 }

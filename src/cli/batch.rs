@@ -71,6 +71,11 @@ pub fn run(args: &Args) -> Result<(), BatchError> {
         ("--layers", args.layers.is_some()),
         ("--width", args.width.is_some()),
         ("--flatten", args.flatten),
+        ("--format", args.format.is_some()),
+        (
+            "- (standard input)",
+            args.inputs.iter().any(|input| io::is_stdio(input)),
+        ),
     ];
     if let Some((option, _)) = per_image.iter().find(|(_, given)| *given) {
         return Err(BatchError::PerImageOption(option));

@@ -33,15 +33,33 @@ pub enum IoError {
     Canvas { path: PathBuf, source: RasterError },
 }
 
+/// Whether `path` is `-`, which stands for standard input (read) or output (write).
+pub fn is_stdio(path: &Path) -> bool {
+    path.as_os_str() == "-"
+}
+
 pub fn read(path: &Path) -> Result<Vec<u8>, IoError> {
-    std::fs::read(path).map_err(|source| IoError::Read {
+    let bytes = if is_stdio(path) {
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut std::io::stdin().lock(), &mut bytes).map(|_| bytes)
+    } else {
+        std::fs::read(path)
+    };
+    bytes.map_err(|source| IoError::Read {
         path: path.into(),
         source,
     })
 }
 
 pub fn write(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
-    std::fs::write(path, bytes).map_err(|source| IoError::Write {
+    let written = if is_stdio(path) {
+        let mut stdout = std::io::stdout().lock();
+        std::io::Write::write_all(&mut stdout, bytes)
+            .and_then(|()| std::io::Write::flush(&mut stdout))
+    } else {
+        std::fs::write(path, bytes)
+    };
+    written.map_err(|source| IoError::Write {
         path: path.into(),
         source,
     })
@@ -80,14 +98,30 @@ pub fn is_image_file(path: &Path) -> bool {
     matches!(extension(path).as_str(), "png" | "jpg" | "jpeg" | "webp")
 }
 
-/// Whether an output path asks for a PNG (extension `.png`, any case); other outputs are SVG.
-pub fn is_png_output(path: &Path) -> bool {
-    extension(path) == "png"
+/// The kind of file a command writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Format {
+    /// The SVG (layered, or flattened with --flatten).
+    Svg,
+    /// A PNG drawn by covec's own renderer.
+    Png,
+    /// A vector PDF of the flattened picture.
+    Pdf,
+    /// The JSON scene.
+    Json,
 }
 
-/// Whether an output path asks for a PDF (extension `.pdf`, any case).
-pub fn is_pdf_output(path: &Path) -> bool {
-    extension(path) == "pdf"
+impl Format {
+    /// The format an output path's extension (any case) names, if any.
+    pub fn of_path(path: &Path) -> Option<Self> {
+        match extension(path).as_str() {
+            "svg" => Some(Format::Svg),
+            "png" => Some(Format::Png),
+            "pdf" => Some(Format::Pdf),
+            "json" => Some(Format::Json),
+            _ => None,
+        }
+    }
 }
 
 /// Reads a JSON scene (`covec vectorize`'s or the service's `scene.json`).

@@ -20,16 +20,22 @@ use covec::svg::{self, SvgOptions};
 #[derive(ClapArgs, Clone, Debug)]
 pub struct Args {
     /// The image: PNG, JPEG or WebP; 8 or 16 bit; grey, RGB or RGBA (alpha is composited over
-    /// white). Several images, or directories (their image files, not recursively), make a
-    /// batch: each becomes `<name>.svg` and `<name>.json` in the output directory.
+    /// white); `-`: standard input. Several images, or directories (their image files, not
+    /// recursively), make a batch: each becomes `<name>.svg` and `<name>.json` in the output
+    /// directory.
     #[arg(required = true, value_name = "INPUT")]
     pub inputs: Vec<PathBuf>,
     /// Where to write the layered SVG (flattened with --flatten), or with a `.png` extension a
-    /// PNG drawn by covec's own renderer (see --width), or with `.pdf` a vector PDF of the
-    /// flattened picture. Default: the input path with the extension `.svg`. For a batch: the
-    /// output directory (required; created if missing).
-    #[arg(short, long, value_name = "OUT.svg|OUT.png|OUT.pdf|DIR")]
+    /// PNG drawn by covec's own renderer (see --width), with `.pdf` a vector PDF of the
+    /// flattened picture, with `.json` the JSON scene alone (see --format). `-`: standard output.
+    /// Default: the input path with the extension `.svg` (standard output when the input is
+    /// `-`). For a batch: the output directory (required; created if missing).
+    #[arg(short, long, value_name = "OUT.svg|OUT.png|OUT.pdf|OUT.json|-|DIR")]
     pub output: Option<PathBuf>,
+    /// What to write to the output, whatever its extension. Default: from the output's
+    /// extension, SVG when it names none of these (or is `-`).
+    #[arg(long, value_enum, value_name = "FORMAT")]
+    pub format: Option<io::Format>,
     /// Batch: pipeline threads in total, shared out among the images run at once.
     /// Default: the number of cores.
     #[arg(long, value_name = "N")]
@@ -44,7 +50,7 @@ pub struct Args {
     pub width: Option<u32>,
     /// Where to write the JSON scene (layers → paths → points, colour, opacity), which the
     /// service and editor load back losslessly. Default: the output path with the extension
-    /// `.json`.
+    /// `.json` (none when the output is `-`).
     #[arg(long, value_name = "SCENE.json")]
     pub json: Option<PathBuf>,
     /// An albedo map with the image's aspect ratio, e.g. from an intrinsic-decomposition
@@ -113,8 +119,12 @@ pub enum Error {
     WidthWithoutPng,
     #[error(transparent)]
     Batch(#[from] super::batch::BatchError),
-    #[error("--flatten applies to an SVG output (a PDF is always flat, a PNG has no paths)")]
+    #[error(
+        "--flatten applies to an SVG output (a PDF is always flat, a PNG or JSON has no paths)"
+    )]
     FlattenWithoutSvg,
+    #[error("--json names the scene's file, but the output is the JSON scene already")]
+    JsonTwice,
 }
 
 pub fn run(args: &Args) -> Result<(), Error> {
@@ -160,18 +170,25 @@ pub(super) fn vectorize_file(
     args: &Args,
     observer: &impl Observer,
 ) -> Result<(PathBuf, pipeline::Output), Error> {
-    let output_path = args
-        .output
-        .clone()
-        .unwrap_or_else(|| input.with_extension("svg"));
-    let png = io::is_png_output(&output_path);
-    let pdf = io::is_pdf_output(&output_path);
-    let svg = !png && !pdf;
-    if args.width.is_some() && !png {
+    let output_path = args.output.clone().unwrap_or_else(|| {
+        if io::is_stdio(input) {
+            input.to_path_buf()
+        } else {
+            input.with_extension("svg")
+        }
+    });
+    let format = args
+        .format
+        .or_else(|| io::Format::of_path(&output_path))
+        .unwrap_or(io::Format::Svg);
+    if args.width.is_some() && format != io::Format::Png {
         return Err(Error::WidthWithoutPng);
     }
-    if args.flatten && !svg {
+    if args.flatten && format != io::Format::Svg {
         return Err(Error::FlattenWithoutSvg);
+    }
+    if args.json.is_some() && format == io::Format::Json {
+        return Err(Error::JsonTwice);
     }
     let limits = Limits {
         max_pixels: args.max_pixels,
@@ -212,39 +229,37 @@ pub(super) fn vectorize_file(
         &AtomicBool::new(false),
     )?;
 
-    let json_path = args
-        .json
-        .clone()
-        .unwrap_or_else(|| output_path.with_extension("json"));
+    let json_path = match format {
+        io::Format::Json => Some(output_path.clone()),
+        _ if args.json.is_some() => args.json.clone(),
+        _ if io::is_stdio(&output_path) => None,
+        _ => Some(output_path.with_extension("json")),
+    };
     if let Some(dir) = &args.layers {
         io::create_dir(dir)?;
     }
     let svg_options = SvgOptions {
         precision: args.precision,
     };
-    let main = if pdf {
-        FileKind::Pdf
-    } else if args.flatten && svg {
-        FileKind::FlatSvg
-    } else {
-        FileKind::LayeredSvg
+    // The kind written to the output path (none for a PNG, drawn below).
+    let main = match format {
+        io::Format::Svg if args.flatten => Some(FileKind::FlatSvg),
+        io::Format::Svg => Some(FileKind::LayeredSvg),
+        io::Format::Pdf => Some(FileKind::Pdf),
+        io::Format::Json => Some(FileKind::SceneJson),
+        io::Format::Png => None,
     };
     let mut kinds = RESULT_FILES.to_vec();
-    if main != FileKind::LayeredSvg {
-        kinds.push(main);
-    }
+    kinds.extend(main.filter(|kind| !kinds.contains(kind)));
     let artefacts = output::artefacts_with(&output.scene, &kinds, &svg_options);
     io::write_artefacts(&artefacts, |kind| match kind {
-        FileKind::LayeredSvg | FileKind::FlatSvg | FileKind::Pdf => {
-            (svg && kind == main || pdf && kind == FileKind::Pdf).then(|| output_path.clone())
-        }
-        FileKind::SceneJson => Some(json_path.clone()),
+        FileKind::SceneJson => json_path.clone(),
         FileKind::Layer(layer) => {
             (args.layers.as_ref()).map(|dir| dir.join(format!("{}.svg", layer.name())))
         }
-        FileKind::Preview => None,
+        _ => (main == Some(kind)).then(|| output_path.clone()),
     })?;
-    if png {
+    if format == io::Format::Png {
         io::write_png(&output_path, &output.scene, args.width, args.max_pixels)?;
     }
     Ok((output_path, output))

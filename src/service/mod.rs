@@ -41,6 +41,7 @@ use axum::http::{HeaderValue, Method};
 use axum::middleware;
 use axum::routing::{MethodFilter, MethodRouter, on};
 use tokio::sync::watch;
+use tower_http::compression::CompressionLayer;
 use tower_http::cors::{AllowOrigin, Any, CorsLayer};
 use tower_http::request_id::{
     MakeRequestUuid, PropagateRequestIdLayer, RequestId, SetRequestIdLayer,
@@ -252,6 +253,9 @@ pub fn app(state: AppState) -> Router {
         .layer(axum::extract::DefaultBodyLimit::max(
             state.limits.max_body_bytes as usize,
         ))
+        // gzip when the client accepts it, for SVG, JSON, PDF and the page (above 32 bytes);
+        // the default predicate leaves PNG and other images, and event streams, as they are.
+        .layer(CompressionLayer::new())
         .layer(
             TraceLayer::new_for_http().make_span_with(|request: &Request| {
                 let request_id = request

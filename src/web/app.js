@@ -781,6 +781,15 @@ function fillDownloads() {
     [version.svgUrl, `${stem}.svg`, version.id ? "Layered SVG (with your colours)" : "Layered SVG"],
     [version.sceneUrl, `${stem}.scene.json`, "Scene JSON"],
   ];
+  // The job's picture for programs without the SVG's blend modes, and at a fixed size; the
+  // service makes these from the job's scene, not an edit's.
+  const jobStem = `covec-${session.job.id}`;
+  const before = version.id ? " (before recolouring)" : "";
+  links.push(
+    [jobPath(session.job, "/svg?flatten=true"), `${jobStem}-flat.svg`, `Flattened SVG${before}`],
+    [jobPath(session.job, "/pdf"), `${jobStem}.pdf`, `PDF${before}`],
+    [jobPath(session.job, "/png"), `${jobStem}.png`, `PNG${before}`],
+  );
   // An edit recolours albedo paths only: the job's shade and light layers stay current.
   const layerUrls = version.layerUrls || original.layerUrls;
   for (const name of LAYERS) {

@@ -626,6 +626,9 @@ async function run(context, base) {
       ["Albedo layer SVG", `/v1/jobs/${job.id}/layers/albedo.svg`],
       ["Shade layer SVG", `/v1/jobs/${job.id}/layers/shade.svg`],
       ["Light layer SVG", `/v1/jobs/${job.id}/layers/light.svg`],
+      ["Flattened SVG", `/v1/jobs/${job.id}/svg?flatten=true`],
+      ["PDF", `/v1/jobs/${job.id}/pdf`],
+      ["PNG", `/v1/jobs/${job.id}/png`],
     ];
     facts.downloads = {};
     for (const [label, url] of expected) {
