@@ -538,7 +538,7 @@ async fn a_job_meeting_a_full_disk_retries_its_writes_and_succeeds() {
         eprintln!("SKIPPED: cannot mount a tmpfs here (needs root); transient-error case not run");
         return;
     };
-    let args = ["--workers", "1"];
+    let args = ["--workers", "1", "--max-iterations", "10000000"];
     let server = Server::start(&dir.0, &args);
     // The long job holds the one worker, so the quick one starts only once the disk is full.
     let long = submit(&server, LONG_PARAMS, 32).await;

@@ -455,11 +455,11 @@ mod tests {
         let _ = std::fs::remove_dir_all(data_dir);
     }
 
-    /// A `POST /v1/jobs` of a 32² image with a few iterations.
+    /// A `POST /v1/jobs` of a 32² image, 8 paths and a few iterations.
     fn submission() -> Request<Body> {
         let png =
             crate::imageio::encode_png(&crate::render::Image::filled(32, 32, [0.2, 0.5, 0.8]));
-        let params = r#"{"paths": 4, "max_size": 32, "iterations": {"structure": 2,
+        let params = r#"{"paths": 8, "max_size": 32, "iterations": {"structure": 2,
             "reconstruction": 2, "refine_rounds": 1, "refine": 2, "polish": 2}}"#;
         let mut body = Vec::new();
         for (name, content_type, bytes) in [
@@ -502,12 +502,13 @@ mod tests {
             .unwrap();
         let app = app(state.clone());
         let busy = app.clone().oneshot(submission()).await.unwrap();
-        assert_eq!(busy.status(), StatusCode::SERVICE_UNAVAILABLE);
-        assert_eq!(busy.headers()["retry-after"], "1");
+        let (status, retry_after) = (busy.status(), busy.headers().get("retry-after").cloned());
         let body = axum::body::to_bytes(busy.into_body(), 1 << 20)
             .await
             .unwrap();
         let problem: serde_json::Value = serde_json::from_slice(&body).unwrap();
+        assert_eq!(status, StatusCode::SERVICE_UNAVAILABLE, "{problem}");
+        assert_eq!(retry_after.unwrap(), "1");
         assert_eq!(problem["code"], "decode-busy");
         drop(held);
         let created = app.oneshot(submission()).await.unwrap();
