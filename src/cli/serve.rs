@@ -52,6 +52,9 @@ pub struct ServeArgs {
     /// Requests that decode their inputs at once; others wait their turn.
     #[arg(long, env = "COVEC_DECODE_SLOTS", default_value_t = InputLimits::default().decode_slots)]
     decode_slots: usize,
+    /// Longest wait for a decode slot, in seconds; then 503 `decode-busy`.
+    #[arg(long, env = "COVEC_DECODE_WAIT", default_value_t = InputLimits::default().decode_wait.as_secs())]
+    decode_wait: u64,
     /// Wall-clock limit of one job, in seconds; then it fails with code `time-limit`.
     #[arg(long, env = "COVEC_JOB_TIME_LIMIT", default_value_t = QueueConfig::default().job_time_limit.as_secs())]
     job_time_limit: u64,
@@ -126,6 +129,7 @@ impl ServeArgs {
                 max_iterations: self.max_iterations,
                 max_decoded_bytes: self.max_decoded_bytes,
                 decode_slots: self.decode_slots.max(1),
+                decode_wait: Duration::from_secs(self.decode_wait),
             },
             connections: ConnectionLimits {
                 header_read_timeout: Duration::from_secs(self.header_read_timeout),

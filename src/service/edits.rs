@@ -4,6 +4,8 @@
 //! result.svg, preview.png}`. An edit may build on an earlier edit (`base`), which gives clients
 //! an undo history for free.
 
+use std::collections::BTreeMap;
+
 use axum::extract::{FromRequest, Multipart, Path, Request, State};
 use axum::http::{HeaderValue, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
@@ -14,6 +16,7 @@ use super::auth::Owner;
 use super::error::ApiError;
 use super::jobs::find;
 use super::results::{artefact, require_success, scene_file, stored_scene};
+use super::store::digest;
 use super::submit::{input_error, read_body};
 use super::{AppState, Endpoint, endpoint};
 use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
@@ -376,16 +379,25 @@ fn store_edit(
             .write_artefact(job_id, name, bytes)
             .map_err(ApiError::from)
     };
-    for artefact in output::artefacts(&edit.scene, EDIT_FILES) {
+    let json = serde_json::to_vec_pretty(&record).expect("a record serialises");
+    let files = output::artefacts(&edit.scene, EDIT_FILES);
+    // Every file's digest, the record's too, is stored before the record.
+    let mut digests: BTreeMap<String, String> = files
+        .iter()
+        .map(|artefact| (artefact.kind.name(), digest(&artefact.bytes)))
+        .collect();
+    digests.insert(EDIT_RECORD.to_owned(), digest(&json));
+    let folder = format!("edits/{id}");
+    for artefact in &files {
         write(
-            &format!("edits/{id}/{}", artefact.kind.name()),
+            &format!("{folder}/{}", artefact.kind.name()),
             &artefact.bytes,
         )?;
     }
-    write(
-        &edit_record(&id),
-        &serde_json::to_vec_pretty(&record).expect("a record serialises"),
-    )?;
+    store
+        .write_folder_digests(job_id, &folder, &digests)
+        .map_err(ApiError::from)?;
+    write(&edit_record(&id), &json)?;
     Ok(record)
 }
 
@@ -425,8 +437,11 @@ async fn edit_file(
 
 /// Where an edit's record is stored.
 fn edit_record(edit_id: &str) -> String {
-    format!("edits/{edit_id}/edit.json")
+    format!("edits/{edit_id}/{EDIT_RECORD}")
 }
+
+/// The file name of an edit's record.
+const EDIT_RECORD: &str = "edit.json";
 
 async fn get(
     State(state): State<AppState>,

@@ -83,7 +83,7 @@ pub enum ApiError {
     IdempotencyMismatch,
     #[error("the job queue is full ({0} jobs); retry later")]
     QueueFull(usize, u64),
-    #[error("every decoding slot stayed busy for {0} s; retry later")]
+    #[error("every decoding slot stayed busy; retry in {0} s")]
     DecodeBusy(u64),
     #[error("the server is shutting down")]
     ShuttingDown,

@@ -182,14 +182,15 @@ impl AppState {
 }
 
 impl AppState {
-    /// A permit to decode one request's images: waits up to [`submit::DECODE_WAIT`] for one of
-    /// the [`InputLimits::decode_slots`], then refuses with 503 `decode-busy` (the request's
-    /// body stays in memory while it waits, so waiting is bounded too).
+    /// A permit to decode one request's images: waits up to [`InputLimits::decode_wait`] for
+    /// one of the [`InputLimits::decode_slots`], then refuses with 503 `decode-busy`.
     async fn decode_slot(&self) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
         let permit = Arc::clone(&self.decode_slots).acquire_owned();
-        match tokio::time::timeout(submit::DECODE_WAIT, permit).await {
+        let wait = self.limits.decode_wait;
+        match tokio::time::timeout(wait, permit).await {
             Ok(permit) => permit.map_err(|error| ApiError::Internal(error.to_string())),
-            Err(_) => Err(ApiError::DecodeBusy(submit::DECODE_WAIT.as_secs())),
+            // A client told to retry at once would only be refused again.
+            Err(_) => Err(ApiError::DecodeBusy(wait.as_secs().max(1))),
         }
     }
 }
@@ -391,11 +392,16 @@ mod tests {
     use super::*;
 
     fn state(name: &str) -> (AppState, PathBuf) {
+        state_with(name, InputLimits::default())
+    }
+
+    fn state_with(name: &str, limits: InputLimits) -> (AppState, PathBuf) {
         let data_dir =
             std::env::temp_dir().join(format!("covec-unit-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&data_dir);
         let config = Config {
             data_dir: data_dir.clone(),
+            limits,
             ..Config::default()
         };
         (AppState::open(&config).unwrap(), data_dir)
@@ -450,6 +456,71 @@ mod tests {
             (status, body["code"].as_str()),
             (StatusCode::METHOD_NOT_ALLOWED, Some("method-not-allowed"))
         );
+        let _ = std::fs::remove_dir_all(data_dir);
+    }
+
+    /// A `POST /v1/jobs` of a 32² image, 8 paths and a few iterations.
+    fn submission() -> Request<Body> {
+        let png =
+            crate::imageio::encode_png(&crate::render::Image::filled(32, 32, [0.2, 0.5, 0.8]));
+        let params = r#"{"paths": 8, "max_size": 32, "iterations": {"structure": 2,
+            "reconstruction": 2, "refine_rounds": 1, "refine": 2, "polish": 2}}"#;
+        let mut body = Vec::new();
+        for (name, content_type, bytes) in [
+            ("image", "image/png", png.as_slice()),
+            ("params", "application/json", params.as_bytes()),
+        ] {
+            body.extend_from_slice(
+                format!(
+                    "--b\r\ncontent-disposition: form-data; name=\"{name}\"; filename=\"{name}\"\r\n\
+                     content-type: {content_type}\r\n\r\n"
+                )
+                .as_bytes(),
+            );
+            body.extend_from_slice(bytes);
+            body.extend_from_slice(b"\r\n");
+        }
+        body.extend_from_slice(b"--b--\r\n");
+        Request::builder()
+            .method("POST")
+            .uri("/v1/jobs")
+            .header("content-type", "multipart/form-data; boundary=b")
+            .body(Body::from(body))
+            .unwrap()
+    }
+
+    /// Decoding beyond the slots answers 503 `decode-busy` with `Retry-After`. The test holds
+    /// every slot itself, so the outcome does not hang on timing; once they are free again the
+    /// same request is accepted.
+    #[tokio::test(flavor = "multi_thread")]
+    async fn submissions_beyond_the_decode_slots_answer_decode_busy() {
+        let limits = InputLimits {
+            decode_slots: 2,
+            decode_wait: Duration::from_millis(50),
+            ..InputLimits::default()
+        };
+        let (state, data_dir) = state_with("decode-busy", limits);
+        let held = Arc::clone(&state.decode_slots)
+            .acquire_many_owned(2)
+            .await
+            .unwrap();
+        let app = app(state.clone());
+        let busy = app.clone().oneshot(submission()).await.unwrap();
+        let (status, retry_after) = (busy.status(), busy.headers().get("retry-after").cloned());
+        let body = axum::body::to_bytes(busy.into_body(), 1 << 20)
+            .await
+            .unwrap();
+        let problem: serde_json::Value = serde_json::from_slice(&body).unwrap();
+        assert_eq!(status, StatusCode::SERVICE_UNAVAILABLE, "{problem}");
+        assert_eq!(retry_after.unwrap(), "1");
+        assert_eq!(problem["code"], "decode-busy");
+        drop(held);
+        let created = app.oneshot(submission()).await.unwrap();
+        assert_eq!(created.status(), StatusCode::CREATED);
+        let queue = Arc::clone(&state.queue);
+        tokio::task::spawn_blocking(move || queue.drain(Duration::ZERO))
+            .await
+            .unwrap();
         let _ = std::fs::remove_dir_all(data_dir);
     }
 }

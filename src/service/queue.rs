@@ -22,7 +22,7 @@ use tracing::{info, info_span, warn};
 use super::error::ApiError;
 use super::model::{CancelReason, JobRecord, ProgressView, Status, now_ms};
 use super::ops::Metrics;
-use super::store::{Store, StoreError, digest};
+use super::store::{Store, StoreError, digest, retry_transient};
 use super::submit::{InputLimits, decode_inputs, input_error};
 use crate::pipeline::{self, Observer, Progress};
 use crate::render::Image;
@@ -555,7 +555,9 @@ impl Queue {
     fn run_job(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) {
         let _span = info_span!("job", job_id = %entry.id).entered();
         let started = Instant::now();
-        if let Err(error) = self.store.save(&entry.snapshot()) {
+        if let Err(error) = retry_transient("saving running state", || {
+            self.store.save(&entry.snapshot())
+        }) {
             warn!("saving running state: {error}");
         }
         info!("started");
@@ -598,7 +600,10 @@ impl Queue {
                     record.progress = None;
                     record.cancel_requested = false;
                 });
-                self.store.save(&entry.snapshot()).map_err(ApiError::from)
+                retry_transient("saving an interrupted job", || {
+                    self.store.save(&entry.snapshot())
+                })
+                .map_err(ApiError::from)
             }
         };
         if let Err(error) = saved {
@@ -622,12 +627,17 @@ impl Queue {
             record.error = error.as_ref().map(ApiError::problem);
             record.cancel_reason = reason;
         });
-        self.store.save(&entry.snapshot()).map_err(ApiError::from)
+        retry_transient("saving the outcome", || self.store.save(&entry.snapshot()))
+            .map_err(ApiError::from)
     }
 
     fn execute(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) -> Outcome {
         let record = entry.snapshot();
-        let read = |name: &str| self.store.read_artefact(&entry.id, name);
+        let read = |name: &str| {
+            retry_transient("reading the job's inputs", || {
+                self.store.read_artefact(&entry.id, name)
+            })
+        };
         let inputs = (|| {
             let missing = || ApiError::Internal("the job's input files are missing".into());
             let image = read("input/image")
@@ -725,8 +735,9 @@ impl Queue {
         let mut checksums = BTreeMap::new();
         for artefact in output.artefacts() {
             let name = artefact.kind.name();
-            self.store
-                .write_artefact(&entry.id, &name, &artefact.bytes)?;
+            retry_transient("writing the results", || {
+                self.store.write_artefact(&entry.id, &name, &artefact.bytes)
+            })?;
             checksums.insert(name, digest(&artefact.bytes));
         }
         entry
@@ -735,13 +746,25 @@ impl Queue {
         Ok(())
     }
 
-    /// A stored file of a job, checked against the digest recorded when it was written (a
-    /// result cut short or altered on disk is an error, never served as if whole).
+    /// A stored file of a job, checked against the digest recorded when it was written: in the
+    /// job's record for its results, in its folder's digests for an edit's files (a file cut
+    /// short or altered on disk is an error, never served as if whole).
     pub fn read_result(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>, ApiError> {
-        let expected = lock(&self.state)
+        let recorded = lock(&self.state)
             .jobs
             .get(id)
             .and_then(|entry| entry.record.borrow().checksums.get(name).cloned());
+        let expected = match recorded {
+            Some(digest) => Some(digest),
+            None => match self.store.folder_digest(id, name) {
+                Ok(digest) => digest,
+                Err(error @ StoreError::CorruptRecord { .. }) => {
+                    tracing::error!(job_id = %id, name, %error, "unreadable digests");
+                    return Err(ApiError::CorruptResult(name.to_owned()));
+                }
+                Err(error) => return Err(error.into()),
+            },
+        };
         let bytes = self.store.read_artefact(id, name)?;
         if let (Some(bytes), Some(expected)) = (&bytes, expected)
             && digest(bytes) != expected

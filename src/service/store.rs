@@ -9,6 +9,7 @@
 //! Artefacts live under `jobs/<id>/` and are written atomically (temporary file, fsync, rename),
 //! so a crash never leaves a half-written file under a served name.
 
+use std::collections::BTreeMap;
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -42,6 +43,84 @@ impl StoreError {
             StoreError::Io { source, .. } => format!("storage: {source}"),
             StoreError::Sqlite(error) => format!("job database: {error}"),
             StoreError::CorruptRecord { id, .. } => format!("job record {id} is corrupt"),
+        }
+    }
+}
+
+impl StoreError {
+    /// Whether the same operation may succeed if tried again shortly: the failure is about the
+    /// moment (a full disk or quota, no file descriptor or memory left, an interrupted or timed
+    /// out call, a busy or locked database), not the data or the directory's permissions (read
+    /// only, permission denied, missing, corrupt), which no retry fixes.
+    pub fn is_transient(&self) -> bool {
+        use std::io::ErrorKind;
+        match self {
+            StoreError::Io { source, .. } => {
+                matches!(
+                    source.kind(),
+                    ErrorKind::Interrupted
+                        | ErrorKind::WouldBlock
+                        | ErrorKind::TimedOut
+                        | ErrorKind::StorageFull
+                        | ErrorKind::QuotaExceeded
+                        | ErrorKind::ResourceBusy
+                        | ErrorKind::OutOfMemory
+                ) || out_of_descriptors(source)
+            }
+            StoreError::Sqlite(rusqlite::Error::SqliteFailure(error, _)) => matches!(
+                error.code,
+                rusqlite::ErrorCode::DatabaseBusy
+                    | rusqlite::ErrorCode::DatabaseLocked
+                    | rusqlite::ErrorCode::DiskFull
+                    | rusqlite::ErrorCode::OutOfMemory
+            ),
+            StoreError::Sqlite(_) | StoreError::CorruptRecord { .. } => false,
+        }
+    }
+}
+
+/// Out of file descriptors (`EMFILE`, `ENFILE`), for which std has no error kind.
+fn out_of_descriptors(error: &std::io::Error) -> bool {
+    #[cfg(target_os = "linux")]
+    return matches!(error.raw_os_error(), Some(libc::EMFILE | libc::ENFILE));
+    #[cfg(not(target_os = "linux"))]
+    return false;
+}
+
+/// The waits before each retry of a job's own storage operation that failed transiently
+/// ([`retry_transient`]): 6.2 s in all, time for a burst of connections to close or for
+/// expired results to free space.
+pub const RETRY_DELAYS: [Duration; 5] = [
+    Duration::from_millis(200),
+    Duration::from_millis(400),
+    Duration::from_millis(800),
+    Duration::from_millis(1600),
+    Duration::from_millis(3200),
+];
+
+/// Runs `operation`, and again after each of [`RETRY_DELAYS`] while it fails transiently
+/// ([`StoreError::is_transient`]), logging each retry; any other error, or the last transient
+/// one, is returned. Blocking (it sleeps): for the job runners, whose work would otherwise be
+/// lost. A request handler does not retry: its client gets a 5xx and may.
+pub fn retry_transient<T>(
+    what: &str,
+    mut operation: impl FnMut() -> Result<T, StoreError>,
+) -> Result<T, StoreError> {
+    let mut delays = RETRY_DELAYS.iter();
+    loop {
+        match operation() {
+            Err(error) if error.is_transient() => {
+                let Some(delay) = delays.next() else {
+                    return Err(error);
+                };
+                tracing::warn!(
+                    %error,
+                    retry_in_ms = delay.as_millis() as u64,
+                    "{what}: transient storage error, retrying"
+                );
+                std::thread::sleep(*delay);
+            }
+            result => return result,
         }
     }
 }
@@ -283,6 +362,38 @@ impl Store {
         write_atomic(&self.job_dir(id).join(name), bytes)
     }
 
+    /// Records the SHA-256 of files stored together under `jobs/<id>/<folder>/` (an edit's
+    /// files; a job's own results have theirs in its record), by file name, for
+    /// [`Store::folder_digest`] to check them by when they are served.
+    pub fn write_folder_digests(
+        &self,
+        id: &str,
+        folder: &str,
+        digests: &BTreeMap<String, String>,
+    ) -> Result<(), StoreError> {
+        let json = serde_json::to_vec(digests).expect("digests serialise");
+        self.write_artefact(id, &format!("{folder}/{FOLDER_DIGESTS}"), &json)
+    }
+
+    /// The digest [`Store::write_folder_digests`] recorded for `jobs/<id>/<name>`; `None` when
+    /// its folder has none (a name at the job's top level, a preview, an edit stored before
+    /// edits had digests). Digests that do not parse are [`StoreError::CorruptRecord`].
+    pub fn folder_digest(&self, id: &str, name: &str) -> Result<Option<String>, StoreError> {
+        let Some((folder, file)) = name.rsplit_once('/') else {
+            return Ok(None);
+        };
+        let path = format!("{folder}/{FOLDER_DIGESTS}");
+        let Some(json) = self.read_artefact(id, &path)? else {
+            return Ok(None);
+        };
+        let digests: BTreeMap<String, String> =
+            serde_json::from_slice(&json).map_err(|error| StoreError::CorruptRecord {
+                id: format!("{id}/{path}"),
+                reason: error.to_string(),
+            })?;
+        Ok(digests.get(file).cloned())
+    }
+
     /// Reads `jobs/<id>/<name>`; `None` when it does not exist.
     pub fn read_artefact(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>, StoreError> {
         let path = self.job_dir(id).join(name);
@@ -355,6 +466,9 @@ fn parse_record(id: &str, json: &str) -> Result<JobRecord, StoreError> {
     }
     Ok(record)
 }
+
+/// The file in a folder of a job that holds its other files' digests.
+const FOLDER_DIGESTS: &str = "checksums.json";
 
 /// SHA-256 of a stored file in hex, recorded when it is written and checked when it is served.
 pub fn digest(bytes: &[u8]) -> String {

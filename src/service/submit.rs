@@ -36,13 +36,13 @@ pub struct InputLimits {
     /// of 4000² would otherwise hold 4 GB.
     pub max_decoded_bytes: u64,
     /// Requests that decode their inputs at once; others wait their turn, up to
-    /// [`DECODE_WAIT`], then get 503 `decode-busy`. Default 2: with the decoded budget this
+    /// `decode_wait`, then get 503 `decode-busy`. Default 2: with the decoded budget this
     /// bounds the memory decoding can take.
     pub decode_slots: usize,
+    /// Longest wait for a decode slot before a request is refused with 503 `decode-busy` (its
+    /// body stays in memory while it waits, so the wait is bounded too). Default 5 s.
+    pub decode_wait: std::time::Duration,
 }
-
-/// Longest wait for a decode slot before a request is refused with 503 `decode-busy`.
-pub const DECODE_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
 
 impl InputLimits {
     /// The parameter ranges these limits allow.
@@ -75,6 +75,7 @@ impl Default for InputLimits {
             max_iterations: 5000,
             max_decoded_bytes: 256 << 20,
             decode_slots: 2,
+            decode_wait: std::time::Duration::from_secs(5),
         }
     }
 }
