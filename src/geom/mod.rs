@@ -2,8 +2,6 @@
 //!
 //! - [`bezier`]: cubic evaluation, Bernstein weights and uniform-parameter flattening.
 //! - [`contour`]: contour tracing and polygon simplification on canvas pixels.
-//! - [`merge`]: fewer cubics per closed path by merging neighbouring segments.
 
 pub mod bezier;
 pub mod contour;
-pub mod merge;

@@ -5,13 +5,11 @@
 use super::coarse::{Plateau, PlateauSettings};
 use super::params::Error;
 use super::stage::{Canvas, StageRun, hold_albedo_base};
-use crate::geom::merge::merge_paths;
 use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
 use crate::render::Image;
-use crate::render::composite::render_layers;
 use crate::render::composite::{svg_model, svg_model_backward};
-use crate::scene::{LayerKind, Point, Scene};
+use crate::scene::{LayerKind, Scene};
 
 /// Settings of the polish.
 #[derive(Clone, Debug, PartialEq)]
@@ -20,21 +18,13 @@ pub(crate) struct PolishSettings {
     pub adam: AdamSettings,
     /// When the polish stops early.
     pub plateau: PlateauSettings,
-    /// Before the polish, neighbouring cubics are merged (least area changed first) until the
-    /// scene holds at most this many per path on average; the polish then retrains them.
-    /// `None` keeps every segment.
-    pub max_mean_segments: Option<f32>,
 }
-
-/// Default of [`PolishSettings::max_mean_segments`] (issue 12's bar).
-pub const MAX_MEAN_SEGMENTS: f32 = 12.0;
 
 impl Default for PolishSettings {
     fn default() -> Self {
         Self {
             adam: AdamSettings::default().scaled(0.5),
             plateau: PlateauSettings::default(),
-            max_mean_segments: Some(MAX_MEAN_SEGMENTS),
         }
     }
 }
@@ -48,9 +38,6 @@ pub(crate) fn polish(
     stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
-    if let Some(max_mean) = settings.max_mean_segments {
-        merge_segments(scene, max_mean);
-    }
     let mut canvas = Canvas::new(w, h);
     let mut adams: Vec<Adam> = LayerKind::ALL
         .iter()
@@ -132,49 +119,4 @@ fn render_all(
     }
     svg_model(&layers[0], &layers[1], &layers[2], composite);
     mse(composite, target, d_composite)
-}
-
-/// Least weight of an outline point in the merge (in colour units): where a path's outline
-/// shows no contrast, its geometry still counts a little.
-pub const MERGE_CONTRAST_FLOOR: f32 = 0.02;
-/// How far either side of an outline the contrast across it is read, in pixels.
-const CONTRAST_REACH: f32 = 1.5;
-
-/// Merges segments over all layers' paths down to `max_mean` per path (see
-/// [`crate::geom::merge`]). An outline point weighs by the contrast across it in its layer's
-/// render (mean |inside − outside| over RGB, plus [`MERGE_CONTRAST_FLOOR`]): outlines hidden
-/// under later paths or between near-equal colours give up their segments first.
-fn merge_segments(scene: &mut Scene, max_mean: f32) {
-    let layers = render_layers(scene);
-    let Scene {
-        albedo,
-        shade,
-        light,
-        ..
-    } = scene;
-    let layer_of: Vec<usize> = [albedo.paths.len(), shade.paths.len(), light.paths.len()]
-        .iter()
-        .enumerate()
-        .flat_map(|(k, &n)| std::iter::repeat_n(k, n))
-        .collect();
-    let mut points: Vec<&mut Vec<Point>> = albedo
-        .paths
-        .iter_mut()
-        .chain(shade.paths.iter_mut())
-        .chain(light.paths.iter_mut())
-        .map(|p| &mut p.points)
-        .collect();
-    let contrast = |i: usize, p: Point, n: Point| {
-        let image = &layers[layer_of[i]];
-        let at = |s: f32| {
-            let x = (p.x + s * n.x).floor().clamp(0.0, (image.width - 1) as f32) as usize;
-            let y = (p.y + s * n.y)
-                .floor()
-                .clamp(0.0, (image.height - 1) as f32) as usize;
-            image.pixel(x, y)
-        };
-        let (a, b) = (at(CONTRAST_REACH), at(-CONTRAST_REACH));
-        MERGE_CONTRAST_FLOOR + (0..3).map(|c| (a[c] - b[c]).abs()).sum::<f32>() / 3.0
-    };
-    merge_paths(&mut points, contrast, max_mean);
 }
