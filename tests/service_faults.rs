@@ -30,6 +30,18 @@ async fn delete(server: &Server, id: &str) -> service_support::Reply {
         .await
 }
 
+/// A server on `dir` with one worker, and a quick job it has run to success.
+async fn one_finished_job(dir: &DataDir) -> (Server, String) {
+    let server = Server::start(&dir.0, &["--workers", "1"]);
+    let id = submit(&server, QUICK_PARAMS, 32).await;
+    server
+        .wait_for(&id, Duration::from_secs(60), |job| {
+            job["status"] == "succeeded"
+        })
+        .await;
+    (server, id)
+}
+
 fn job_dir(data_dir: &Path, id: &str) -> std::path::PathBuf {
     data_dir.join("jobs").join(id)
 }
@@ -199,13 +211,7 @@ async fn a_corrupt_job_record_is_quarantined_and_the_server_starts() {
 #[tokio::test(flavor = "multi_thread")]
 async fn orphaned_job_directories_are_swept_at_start() {
     let dir = DataDir::new("orphans");
-    let server = Server::start(&dir.0, &["--workers", "1"]);
-    let id = submit(&server, QUICK_PARAMS, 32).await;
-    server
-        .wait_for(&id, Duration::from_secs(60), |job| {
-            job["status"] == "succeeded"
-        })
-        .await;
+    let (server, id) = one_finished_job(&dir).await;
     server.stop();
     let orphan = job_dir(&dir.0, "job_0192a1b2c3d4e5f60718293a4b5c6d7e");
     std::fs::create_dir_all(orphan.join("input")).unwrap();
@@ -487,13 +493,7 @@ async fn deletes_on_a_full_or_read_only_disk_leave_no_half_done_state() {
 #[tokio::test(flavor = "multi_thread")]
 async fn damaged_results_are_problems_not_200s() {
     let dir = DataDir::new("damaged");
-    let server = Server::start(&dir.0, &["--workers", "1"]);
-    let id = submit(&server, QUICK_PARAMS, 32).await;
-    server
-        .wait_for(&id, Duration::from_secs(60), |job| {
-            job["status"] == "succeeded"
-        })
-        .await;
+    let (server, id) = one_finished_job(&dir).await;
     let jobs = job_dir(&dir.0, &id);
     let svg = std::fs::read(jobs.join("result.svg")).unwrap();
     std::fs::write(jobs.join("result.svg"), &svg[..svg.len() / 2]).unwrap();
@@ -595,13 +595,7 @@ async fn a_job_meeting_a_full_disk_retries_its_writes_and_succeeds() {
 #[tokio::test(flavor = "multi_thread")]
 async fn damaged_edit_files_are_problems_not_200s() {
     let dir = DataDir::new("damaged-edit");
-    let server = Server::start(&dir.0, &["--workers", "1"]);
-    let id = submit(&server, QUICK_PARAMS, 32).await;
-    server
-        .wait_for(&id, Duration::from_secs(60), |job| {
-            job["status"] == "succeeded"
-        })
-        .await;
+    let (server, id) = one_finished_job(&dir).await;
     let created = server
         .post_json(
             &format!("/v1/jobs/{id}/edits"),
