@@ -7,6 +7,7 @@
 
 use super::coarse::{Plateau, PlateauSettings};
 use super::init::LayerGroups;
+use super::keep::{Keep, albedo_term, containment_term};
 use super::params::{Error, ResolvedMode};
 use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo, hold_albedo_base};
 use crate::decompose::mask::Mask;
@@ -125,7 +126,7 @@ pub(crate) fn optimise_structure(
                 g.layer == kind && !(kind == LayerKind::Albedo && g.paths == [0])
             };
             for group in prepared.iter().filter(trainable) {
-                loss += structure_loss(&mut canvas, paths, group, settings, grads, &mut scratch);
+                loss += structure_loss(&mut canvas, paths, group, settings, 1.0, grads, &mut scratch);
             }
             // The structure loss shapes geometry only; colours are fit by the reconstruction.
             hold_colours(grads);
@@ -149,6 +150,7 @@ pub(crate) fn optimise_reconstruction(
     target: &Image,
     span: IterationSpan,
     settings: &StructureSettings,
+    keep: Option<&KeepRun>,
     mode: ResolvedMode,
     stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
@@ -159,16 +161,39 @@ pub(crate) fn optimise_reconstruction(
     let [mut adam_albedo, mut adam_illum] = layer_adams(settings, w, h);
     let mut plateau = Plateau::new(settings.plateau);
     let (mut grads_a, mut grads_i) = (Vec::new(), Vec::new());
+    let held = keep.map(|k| {
+        (
+            k.keep.albedo_groups(scene, k.seed),
+            k.keep.parents(&mut canvas, &scene.shade.paths),
+        )
+    });
     for it in 0..span.count {
         reset_grads(&mut grads_a, &scene.albedo.paths);
         reset_grads(&mut grads_i, &scene.shade.paths);
-        let loss = reconstruction_loss(
+        let mut loss = reconstruction_loss(
             &mut canvas,
             scene,
             target,
             &mut scratch,
             Some((&mut grads_a, &mut grads_i)),
         );
+        if let (Some(k), Some((groups, parents))) = (keep, &held) {
+            loss += albedo_term(
+                &mut canvas,
+                &scene.albedo.paths,
+                groups,
+                settings,
+                k.keep.albedo_weight,
+                &mut grads_a,
+            );
+            loss += containment_term(
+                &mut canvas,
+                &scene.shade.paths,
+                parents,
+                k.keep,
+                &mut grads_i,
+            );
+        }
         if plateau.stop_after(loss) {
             break;
         }
@@ -179,6 +204,13 @@ pub(crate) fn optimise_reconstruction(
     }
     let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
     Ok([initial, after])
+}
+
+/// The masks and regions paths are held to in a stage, and how strongly.
+pub(crate) struct KeepRun<'a> {
+    pub keep: &'a Keep,
+    /// Seed of the structure stage's group colours.
+    pub seed: u64,
 }
 
 /// Zeroes the colour gradients: the paths keep their fills.
@@ -253,14 +285,14 @@ pub(crate) fn preview_two_layers(
 }
 
 /// A mask group ready for the loss: fixed random colours per path and the coloured mask target.
-struct PreparedGroup {
-    layer: LayerKind,
-    paths: Vec<usize>,
+pub(crate) struct PreparedGroup {
+    pub layer: LayerKind,
+    pub paths: Vec<usize>,
     colors: Vec<[f32; 3]>,
     target: Image,
 }
 
-fn prepare_groups(
+pub(crate) fn prepare_groups(
     scene: &Scene,
     groups: &[MaskGroup],
     w: usize,
@@ -312,12 +344,14 @@ fn prepare_groups(
     Ok(prepared)
 }
 
-/// Mask term + overlap term of one group; adds point and opacity gradients into `grads`.
-fn structure_loss(
+/// Mask term + overlap term of one group; adds `scale` × its point and opacity gradients into
+/// `grads`.
+pub(crate) fn structure_loss(
     canvas: &mut Canvas,
     paths: &[Path],
     group: &PreparedGroup,
     settings: &StructureSettings,
+    scale: f32,
     grads: &mut [PathGrad],
     s: &mut Scratch,
 ) -> f32 {
@@ -362,10 +396,10 @@ fn structure_loss(
     for ((&i, g), gg) in group.paths.iter().zip(&local).zip(&grey_grads) {
         let out = &mut grads[i];
         for ((o, a), b) in out.points.iter_mut().zip(&g.points).zip(&gg.points) {
-            o.x += a.x + b.x;
-            o.y += a.y + b.y;
+            o.x += scale * (a.x + b.x);
+            o.y += scale * (a.y + b.y);
         }
-        out.opacity += g.opacity;
+        out.opacity += scale * g.opacity;
     }
     mask_loss + overlap
 }
