@@ -22,7 +22,10 @@ const DISC: u8 = 5;
 fn scene_with_disc() -> (Image, image::DynamicImage, Vec<Vec<bool>>) {
     let lit = synth::scenes::scene(0, SIZE);
     let mut truth = Truth::from(lit);
-    let objects = truth.objects.as_mut().expect("generated scenes have labels");
+    let objects = truth
+        .objects
+        .as_mut()
+        .expect("generated scenes have labels");
     let (cx, cy) = (12.0f32, 12.0f32);
     for y in 0..SIZE {
         for x in 0..SIZE {
@@ -87,7 +90,10 @@ fn albedo_paths_keep_their_regions_and_illumination_paths_their_parents() {
         let best = albedo.iter().map(|c| iou(c, mask)).fold(0.0, f32::max);
         let area = mask.iter().filter(|&&m| m).count();
         let bar = if k == disc { 0.8 } else { 0.9 };
-        assert!(best >= bar, "region {k} ({area} px): albedo path IoU {best:.3}");
+        assert!(
+            best >= bar,
+            "region {k} ({area} px): albedo path IoU {best:.3}"
+        );
     }
     let illumination = scene.shade.paths.iter().chain(&scene.light.paths);
     for (n, path) in illumination.enumerate() {

@@ -10,7 +10,6 @@
 pub(crate) mod coarse;
 pub(crate) mod decompose;
 pub(crate) mod init;
-pub(crate) mod keep;
 pub(crate) mod optimise;
 pub mod params;
 pub(crate) mod polish;

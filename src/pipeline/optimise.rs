@@ -7,15 +7,14 @@
 
 use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask};
 use super::init::InitState;
-use super::keep::{Keep, KeepSettings};
 use super::params::{Error, Params, ResolvedMode};
 use super::polish::{self, PolishSettings};
 use super::refine::{Growth, RefinePlan, RefineSettings, refine};
 use super::split::{SplitReport, split_layers};
 use super::stage::{Canvas, IterationSpan, StageKind, StageRun};
 use super::structure::{
-    KeepRun, MaskGroup, Scratch, StructureRun, StructureSettings, optimise_reconstruction,
-    optimise_structure, preview_two_layers, reconstruction_loss,
+    Keep, KeepRun, KeepSettings, MaskGroup, Scratch, StructureRun, StructureSettings,
+    optimise_reconstruction, optimise_structure, preview_two_layers, reconstruction_loss,
 };
 use crate::render::Image;
 use crate::scene::{LayerKind, Scene};
@@ -310,7 +309,8 @@ impl<'a> Optimisation<'a> {
             seed: self.params.seed,
         };
         let coarse_plan = plan(0, coarse_rounds, &self.settings.refine, half);
-        let coarse = self.coarse(|small, small_target| refine(small, small_target, &coarse_plan, stage));
+        let coarse =
+            self.coarse(|small, small_target| refine(small, small_target, &coarse_plan, stage));
         let fine_plan = plan(
             coarse_rounds,
             it.refine_rounds - coarse_rounds,

@@ -4,9 +4,8 @@
 
 use super::coarse::{Plateau, PlateauSettings};
 use super::params::Error;
-use super::keep::{albedo_term, containment_term};
 use super::stage::{Canvas, StageRun, hold_albedo_base};
-use super::structure::{KeepRun, StructureSettings};
+use super::structure::{KeepRun, StructureSettings, albedo_term, containment_term};
 use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
 use crate::render::Image;

@@ -8,9 +8,8 @@
 use super::coarse::{Plateau, PlateauSettings};
 use super::params::Error;
 use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, high_error_regions};
-use super::keep::{Keep, containment_term};
 use super::stage::{Canvas, IterationSpan, StageRun};
-use super::structure::KeepRun;
+use super::structure::{Keep, KeepRun, containment_term};
 use crate::optim::loss::mse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
