@@ -30,6 +30,8 @@ pub(crate) struct Decomposition {
     pub candidates: Vec<Candidate>,
     /// The mode to run.
     pub mode: ResolvedMode,
+    /// Whether the candidates are the client's masks (or label map) rather than covec's own.
+    pub masks_given: bool,
 }
 
 /// Resolves `auto` from the working-size target: `simple` when a few exact colours cover much
@@ -61,6 +63,7 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
         Masks::Binary(masks) => Some(masks.iter().map(|m| sample_mask(m, w, h)).collect()),
         Masks::Labels(labels) => Some(label_masks(labels, w, h)),
     };
+    let masks_given = given.is_some();
     let candidates = match given {
         Some(given) => {
             let prepared = given
@@ -88,5 +91,6 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
         albedo,
         candidates,
         mode,
+        masks_given,
     }
 }

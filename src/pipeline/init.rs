@@ -86,6 +86,8 @@ pub struct InitState {
     /// Illumination structure paths (in `scene.shade`); no groups in simple mode.
     pub illumination: LayerGroups,
     pub mode: ResolvedMode,
+    /// Whether the albedo masks are the client's (see `super::keep`).
+    pub masks_given: bool,
 }
 
 /// Douglas-Peucker tolerance in pixels: 1 px per 256 px of long side, at least 1 (LayerVec
@@ -105,6 +107,7 @@ pub(crate) fn run(
         albedo: albedo_map,
         candidates,
         mode,
+        masks_given,
         ..
     } = decomposition;
     let (w, h) = (target.width, target.height);
@@ -151,6 +154,7 @@ pub(crate) fn run(
         albedo,
         illumination,
         mode,
+        masks_given,
     }
 }
 

@@ -13,8 +13,8 @@ use super::refine::{Growth, RefinePlan, RefineSettings, refine};
 use super::split::{SplitReport, split_layers};
 use super::stage::{Canvas, IterationSpan, StageKind, StageRun};
 use super::structure::{
-    MaskGroup, Scratch, StructureRun, StructureSettings, optimise_reconstruction,
-    optimise_structure, preview_two_layers, reconstruction_loss,
+    Keep, KeepRun, KeepSettings, MaskGroup, Scratch, StructureRun, StructureSettings,
+    optimise_reconstruction, optimise_structure, preview_two_layers, reconstruction_loss,
 };
 use crate::render::Image;
 use crate::scene::{LayerKind, Scene};
@@ -26,6 +26,7 @@ pub(crate) struct OptimiseSettings {
     pub refine: RefineSettings,
     pub coarse: CoarseSettings,
     pub polish: PolishSettings,
+    pub keep: KeepSettings,
 }
 
 /// The image loss (MSE against the target) at the start and end of one stage: the two-layer
@@ -50,6 +51,8 @@ pub(crate) struct Optimisation<'a> {
     pub scene: Scene,
     pub report: OptimiseReport,
     groups: Vec<MaskGroup>,
+    /// What paths are held to after the structure stage (photo mode), at full and half size.
+    keep: Option<[Keep; 2]>,
     target: Image,
     /// The target at half size, when the coarse phase applies.
     small_target: Option<Image>,
@@ -74,10 +77,10 @@ impl<'a> Optimisation<'a> {
             albedo,
             illumination,
             mode,
-            ..
+            masks_given,
         } = init;
         let groups = MaskGroup::from_init(&[albedo, illumination]);
-        Self::from_parts(scene, groups, target, mode, params, settings)
+        Self::from_parts(scene, groups, target, mode, masks_given, params, settings)
     }
 
     /// Takes over a scene with its structure groups (as the init stage makes them).
@@ -86,6 +89,7 @@ impl<'a> Optimisation<'a> {
         groups: Vec<MaskGroup>,
         target: Image,
         mode: ResolvedMode,
+        masks_given: bool,
         params: &'a Params,
         settings: &'a OptimiseSettings,
     ) -> Result<Self, Error> {
@@ -102,7 +106,16 @@ impl<'a> Optimisation<'a> {
             ));
         }
         let (w, h) = (target.width, target.height);
+        // Photo mode only: simple mode's albedo paths are its objects and shading at once.
+        let keep = (mode == ResolvedMode::Photo)
+            .then(|| Keep::new(&groups, w, h, &settings.keep, masks_given))
+            .filter(|k| k.albedo_weight > 0.0 || k.containment_weight > 0.0)
+            .map(|full| {
+                let half = full.halved();
+                [full, half]
+            });
         Ok(Self {
+            keep,
             groups,
             small_target: settings.coarse.applies(w, h).then(|| halve_image(&target)),
             target,
@@ -193,7 +206,16 @@ impl<'a> Optimisation<'a> {
             0
         };
         let (settings, mode) = (&self.settings.structure, self.mode);
-        self.coarse(|small, small_target| {
+        let keep = self.keep.take();
+        let run = |k| KeepRun {
+            keep: k,
+            seed: self.params.seed,
+        };
+        let (full, half) = match &keep {
+            Some([full, half]) => (Some(run(full)), Some(run(half))),
+            None => (None, None),
+        };
+        let coarse = self.coarse(|small, small_target| {
             optimise_reconstruction(
                 small,
                 small_target,
@@ -203,22 +225,28 @@ impl<'a> Optimisation<'a> {
                     total,
                 },
                 settings,
+                half.as_ref(),
                 mode,
                 stage,
             )
-        })?;
-        optimise_reconstruction(
-            &mut self.scene,
-            &self.target,
-            IterationSpan {
-                start: coarse_count,
-                count: total - coarse_count,
-                total,
-            },
-            settings,
-            mode,
-            stage,
-        )?;
+        });
+        let fine = coarse.and_then(|_| {
+            optimise_reconstruction(
+                &mut self.scene,
+                &self.target,
+                IterationSpan {
+                    start: coarse_count,
+                    count: total - coarse_count,
+                    total,
+                },
+                settings,
+                full.as_ref(),
+                mode,
+                stage,
+            )
+        });
+        self.keep = keep;
+        fine?;
         let after = if total > 0 {
             preview_two_layers(&mut self.canvas, &self.scene, &self.target, stage)
         } else {
@@ -258,8 +286,18 @@ impl<'a> Optimisation<'a> {
             plateau: PlateauSettings::never(),
             ..self.settings.refine.clone()
         };
-        let plan = |start: u32, count: u32, settings| RefinePlan {
+        let keep = self.keep.take();
+        let run = |k| KeepRun {
+            keep: k,
+            seed: self.params.seed,
+        };
+        let (full, half) = match &keep {
+            Some([full, half]) => (Some(run(full)), Some(run(half))),
+            None => (None, None),
+        };
+        let plan = |start: u32, count: u32, settings, keep| RefinePlan {
             growth,
+            keep,
             budget: self.params.paths as usize,
             rounds: IterationSpan {
                 start,
@@ -270,14 +308,18 @@ impl<'a> Optimisation<'a> {
             settings,
             seed: self.params.seed,
         };
-        let coarse_plan = plan(0, coarse_rounds, &self.settings.refine);
-        self.coarse(|small, small_target| refine(small, small_target, &coarse_plan, stage))?;
+        let coarse_plan = plan(0, coarse_rounds, &self.settings.refine, half);
+        let coarse =
+            self.coarse(|small, small_target| refine(small, small_target, &coarse_plan, stage));
         let fine_plan = plan(
             coarse_rounds,
             it.refine_rounds - coarse_rounds,
             &fine_settings,
+            full,
         );
-        let [_, after] = refine(&mut self.scene, &self.target, &fine_plan, stage)?;
+        let fine = coarse.and_then(|_| refine(&mut self.scene, &self.target, &fine_plan, stage));
+        self.keep = keep;
+        let [_, after] = fine?;
         self.record(stage, self.loss, after);
         Ok(())
     }
@@ -291,11 +333,16 @@ impl<'a> Optimisation<'a> {
     }
 
     fn polish(&mut self, stage: &StageRun) -> Result<(), Error> {
+        let run = self.keep.as_ref().map(|[full, _]| KeepRun {
+            keep: full,
+            seed: self.params.seed,
+        });
         let [before, after] = polish::polish(
             &mut self.scene,
             &self.target,
             self.params.iterations.polish,
             &self.settings.polish,
+            run.as_ref().map(|r| (r, &self.settings.structure)),
             stage,
         )?;
         self.record(stage, before, after);

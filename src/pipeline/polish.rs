@@ -5,6 +5,7 @@
 use super::coarse::{Plateau, PlateauSettings};
 use super::params::Error;
 use super::stage::{Canvas, StageRun, hold_albedo_base};
+use super::structure::{KeepRun, StructureSettings, albedo_term, containment_term};
 use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
 use crate::render::Image;
@@ -35,6 +36,7 @@ pub(crate) fn polish(
     target: &Image,
     iterations: u32,
     settings: &PolishSettings,
+    keep: Option<(&KeepRun, &StructureSettings)>,
     stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
@@ -61,6 +63,13 @@ pub(crate) fn polish(
         &mut composite,
         &mut d_composite,
     );
+    let held = keep.map(|(k, _)| {
+        (
+            k.keep.albedo_groups(scene, k.seed),
+            [LayerKind::Shade, LayerKind::Light]
+                .map(|kind| k.keep.parents(&mut canvas, &scene.layer(kind).paths)),
+        )
+    });
     let mut loss = initial;
     let mut plateau = Plateau::new(settings.plateau);
     for it in 0..iterations {
@@ -83,6 +92,29 @@ pub(crate) fn polish(
             canvas
                 .raster
                 .backward(paths, kind.base(), &d_layers[k], &mut grads);
+            if let (Some((k, structure)), Some((groups, parents))) = (keep, &held) {
+                match kind {
+                    LayerKind::Albedo => {
+                        albedo_term(
+                            &mut canvas,
+                            paths,
+                            groups,
+                            structure,
+                            k.keep.albedo_weight,
+                            &mut grads,
+                        );
+                    }
+                    LayerKind::Shade | LayerKind::Light => {
+                        containment_term(
+                            &mut canvas,
+                            paths,
+                            &parents[k_index(kind)],
+                            k.keep,
+                            &mut grads,
+                        );
+                    }
+                }
+            }
             if kind == LayerKind::Albedo {
                 hold_albedo_base(&mut grads);
             }
@@ -103,6 +135,11 @@ pub(crate) fn polish(
         stage.preview(kind.name(), &layers[k]);
     }
     Ok([initial, loss])
+}
+
+/// Index of an illumination layer's parents in the polish's pair.
+fn k_index(kind: LayerKind) -> usize {
+    usize::from(kind == LayerKind::Light)
 }
 
 /// Renders the three layers and the SVG composite; returns the MSE and writes its gradient.

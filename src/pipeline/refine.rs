@@ -9,6 +9,7 @@ use super::coarse::{Plateau, PlateauSettings};
 use super::params::Error;
 use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, high_error_regions};
 use super::stage::{Canvas, IterationSpan, StageRun};
+use super::structure::{Keep, KeepRun, containment_term};
 use crate::optim::loss::mse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
@@ -70,6 +71,8 @@ pub(crate) struct RefinePlan<'a> {
     pub iterations: u32,
     pub settings: &'a RefineSettings,
     pub seed: u64,
+    /// The albedo regions new paths are held to (photo mode).
+    pub keep: Option<KeepRun<'a>>,
 }
 
 /// Runs the plan's rounds (each of up to `iterations`, stopping early once the loss has
@@ -89,7 +92,9 @@ pub(crate) fn refine(
         iterations,
         settings,
         seed,
+        ref keep,
     } = *plan;
+
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let mut rng = Rng::new(seed, 0x5245_4649);
@@ -151,10 +156,18 @@ pub(crate) fn refine(
             settings,
             bounds,
         };
+        let parents = keep
+            .as_ref()
+            .map(|k| k.keep.parents(&mut canvas, &new_paths))
+            .unwrap_or_default();
         let frame = Frame {
             backdrop: &frozen,
             factor: &factor,
             target,
+            containment: keep.as_ref().map(|k| Containment {
+                parents: &parents,
+                keep: k.keep,
+            }),
         };
         train(
             &mut canvas,
@@ -169,13 +182,21 @@ pub(crate) fn refine(
             let merged = merge(&mut canvas, &mut new_paths, settings);
             if merged > 0 {
                 // Train only the merged paths (on top), over everything else.
-                let keep = new_paths.len() - merged;
+                let kept = new_paths.len() - merged;
                 let mut below = Image::default();
-                canvas.render_over(&new_paths[..keep], &frozen, &mut below);
-                let mut merged_paths = new_paths.split_off(keep);
+                canvas.render_over(&new_paths[..kept], &frozen, &mut below);
+                let mut merged_paths = new_paths.split_off(kept);
                 let report = base_iteration + iterations;
+                let merged_parents = keep
+                    .as_ref()
+                    .map(|k| k.keep.parents(&mut canvas, &merged_paths))
+                    .unwrap_or_default();
                 let frame = Frame {
                     backdrop: &below,
+                    containment: frame.containment.map(|c| Containment {
+                        parents: &merged_parents,
+                        ..c
+                    }),
                     ..frame
                 };
                 let schedule = Schedule {
@@ -220,6 +241,15 @@ struct Frame<'a> {
     backdrop: &'a Image,
     factor: &'a Image,
     target: &'a Image,
+    /// Holds each new path to its parent region (photo mode).
+    containment: Option<Containment<'a>>,
+}
+
+/// The new paths' parent regions, the region of every pixel, and the term's weight.
+#[derive(Clone, Copy)]
+struct Containment<'a> {
+    parents: &'a [u32],
+    keep: &'a Keep,
 }
 
 /// How long and how new paths are trained.
@@ -242,6 +272,7 @@ fn train(
         backdrop,
         factor,
         target,
+        containment,
     } = *frame;
     let mut adam = Adam::new(schedule.settings.adam, schedule.bounds);
     let mut plateau = Plateau::new(schedule.settings.plateau);
@@ -252,13 +283,16 @@ fn train(
     for it in 0..schedule.iterations {
         canvas.render_over(paths, backdrop, &mut layer);
         product(&layer, factor, &mut composite);
-        let loss = mse(&composite, target, &mut d_composite);
-        if plateau.stop_after(loss) {
-            break;
-        }
+        let mut loss = mse(&composite, target, &mut d_composite);
         product_backward(&layer, factor, &d_composite, &mut d_layer, &mut d_factor);
         reset_grads(&mut grads, paths);
         canvas.backward_over(paths, backdrop, &d_layer, &mut grads);
+        if let Some(c) = containment {
+            loss += containment_term(canvas, paths, c.parents, c.keep, &mut grads);
+        }
+        if plateau.stop_after(loss) {
+            break;
+        }
         adam.step(paths, &grads);
         report(it + 1, loss)?;
     }

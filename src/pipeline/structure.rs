@@ -4,8 +4,12 @@
 //! Until the layer separation, the illumination layer lives in `scene.shade` (both are painted over
 //! white and multiplied onto the albedo); its colours may exceed 1 up to
 //! [`StructureSettings::illumination_cap`].
+//!
+//! Paths that keep to objects (issue 21): after the structure stage, terms added to the
+//! reconstruction, refinement and polish losses keep what the init stage built from masks there
+//! ([`Keep`]).
 
-use super::coarse::{Plateau, PlateauSettings};
+use super::coarse::{Plateau, PlateauSettings, halve_mask};
 use super::init::LayerGroups;
 use super::params::{Error, ResolvedMode};
 use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo, hold_albedo_base};
@@ -125,7 +129,15 @@ pub(crate) fn optimise_structure(
                 g.layer == kind && !(kind == LayerKind::Albedo && g.paths == [0])
             };
             for group in prepared.iter().filter(trainable) {
-                loss += structure_loss(&mut canvas, paths, group, settings, grads, &mut scratch);
+                loss += structure_loss(
+                    &mut canvas,
+                    paths,
+                    group,
+                    settings,
+                    1.0,
+                    grads,
+                    &mut scratch,
+                );
             }
             // The structure loss shapes geometry only; colours are fit by the reconstruction.
             hold_colours(grads);
@@ -149,6 +161,7 @@ pub(crate) fn optimise_reconstruction(
     target: &Image,
     span: IterationSpan,
     settings: &StructureSettings,
+    keep: Option<&KeepRun>,
     mode: ResolvedMode,
     stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
@@ -159,16 +172,39 @@ pub(crate) fn optimise_reconstruction(
     let [mut adam_albedo, mut adam_illum] = layer_adams(settings, w, h);
     let mut plateau = Plateau::new(settings.plateau);
     let (mut grads_a, mut grads_i) = (Vec::new(), Vec::new());
+    let held = keep.map(|k| {
+        (
+            k.keep.albedo_groups(scene, k.seed),
+            k.keep.parents(&mut canvas, &scene.shade.paths),
+        )
+    });
     for it in 0..span.count {
         reset_grads(&mut grads_a, &scene.albedo.paths);
         reset_grads(&mut grads_i, &scene.shade.paths);
-        let loss = reconstruction_loss(
+        let mut loss = reconstruction_loss(
             &mut canvas,
             scene,
             target,
             &mut scratch,
             Some((&mut grads_a, &mut grads_i)),
         );
+        if let (Some(k), Some((groups, parents))) = (keep, &held) {
+            loss += albedo_term(
+                &mut canvas,
+                &scene.albedo.paths,
+                groups,
+                settings,
+                k.keep.albedo_weight,
+                &mut grads_a,
+            );
+            loss += containment_term(
+                &mut canvas,
+                &scene.shade.paths,
+                parents,
+                k.keep,
+                &mut grads_i,
+            );
+        }
         if plateau.stop_after(loss) {
             break;
         }
@@ -179,6 +215,13 @@ pub(crate) fn optimise_reconstruction(
     }
     let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
     Ok([initial, after])
+}
+
+/// The masks and regions paths are held to in a stage, and how strongly.
+pub(crate) struct KeepRun<'a> {
+    pub keep: &'a Keep,
+    /// Seed of the structure stage's group colours.
+    pub seed: u64,
 }
 
 /// Zeroes the colour gradients: the paths keep their fills.
@@ -253,14 +296,14 @@ pub(crate) fn preview_two_layers(
 }
 
 /// A mask group ready for the loss: fixed random colours per path and the coloured mask target.
-struct PreparedGroup {
-    layer: LayerKind,
-    paths: Vec<usize>,
+pub(crate) struct PreparedGroup {
+    pub layer: LayerKind,
+    pub paths: Vec<usize>,
     colors: Vec<[f32; 3]>,
     target: Image,
 }
 
-fn prepare_groups(
+pub(crate) fn prepare_groups(
     scene: &Scene,
     groups: &[MaskGroup],
     w: usize,
@@ -312,12 +355,14 @@ fn prepare_groups(
     Ok(prepared)
 }
 
-/// Mask term + overlap term of one group; adds point and opacity gradients into `grads`.
-fn structure_loss(
+/// Mask term + overlap term of one group; adds `scale` × its point and opacity gradients into
+/// `grads`.
+pub(crate) fn structure_loss(
     canvas: &mut Canvas,
     paths: &[Path],
     group: &PreparedGroup,
     settings: &StructureSettings,
+    scale: f32,
     grads: &mut [PathGrad],
     s: &mut Scratch,
 ) -> f32 {
@@ -362,10 +407,238 @@ fn structure_loss(
     for ((&i, g), gg) in group.paths.iter().zip(&local).zip(&grey_grads) {
         let out = &mut grads[i];
         for ((o, a), b) in out.points.iter_mut().zip(&g.points).zip(&gg.points) {
-            o.x += a.x + b.x;
-            o.y += a.y + b.y;
+            o.x += scale * (a.x + b.x);
+            o.y += scale * (a.y + b.y);
         }
-        out.opacity += g.opacity;
+        out.opacity += scale * g.opacity;
     }
     mask_loss + overlap
+}
+
+// ---- Paths that keep to objects (issue 21) ----
+//
+// - **Albedo paths keep their masks**: the structure loss of the albedo mask groups (the
+//   structure stage's mask and overlap terms, same fixed colours) stays on, weighted (see
+//   `KeepSettings`), in every later stage that moves albedo geometry (reconstruct, polish).
+// - **Illumination paths keep one parent region**: the albedo regions (visible parts of the
+//   albedo masks, a partition of the canvas) label every pixel; each shade or light path's
+//   parent is the region holding most of its area when a stage starts (for a structure path,
+//   the region it was binarised in; for a new path, the region its error region lies in), and
+//   its coverage outside the parent costs a weight per pixel (mean over the canvas, as the
+//   image loss is) in the reconstruction, the refinement's training and the polish.
+// - Photo mode only; by default on the client's masks only (README, "Paths that keep to
+//   objects": on covec's own segmentation both terms cost bench MSE and did not raise VeC).
+/// How strongly paths are held to their masks and regions; 0 turns a term off.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KeepSettings {
+    /// Weight of the albedo groups' structure loss after the structure stage, when the masks
+    /// are the client's. Default 1: a path edge moved off its mask costs about what the mask
+    /// term costs in the structure stage, several times what a typical colour error costs the
+    /// image loss.
+    pub given_albedo_weight: f32,
+    /// The same for covec's own segmentation.
+    pub own_albedo_weight: f32,
+    /// Weight of an illumination path's coverage outside its parent region, per pixel (mean),
+    /// when the masks are the client's.
+    pub given_containment_weight: f32,
+    /// The same for covec's own segmentation.
+    pub own_containment_weight: f32,
+}
+
+impl Default for KeepSettings {
+    fn default() -> Self {
+        Self {
+            given_albedo_weight: 1.0,
+            own_albedo_weight: 0.0,
+            given_containment_weight: 0.1,
+            own_containment_weight: 0.0,
+        }
+    }
+}
+
+/// The masks and regions at one working size, and the weights of this run.
+pub(crate) struct Keep {
+    /// Weight of the albedo groups' structure loss.
+    pub albedo_weight: f32,
+    /// Weight of the illumination paths' containment term.
+    pub containment_weight: f32,
+    groups: Vec<MaskGroup>,
+    /// Albedo region of each pixel (an index in paint order of the albedo masks).
+    region: Vec<u32>,
+    width: usize,
+    height: usize,
+}
+
+impl Keep {
+    /// From the init stage's mask groups (working size), with the weights for the client's
+    /// masks or covec's own.
+    pub fn new(
+        groups: &[MaskGroup],
+        width: usize,
+        height: usize,
+        settings: &KeepSettings,
+        masks_given: bool,
+    ) -> Self {
+        let albedo: Vec<MaskGroup> = groups
+            .iter()
+            .filter(|g| g.layer == LayerKind::Albedo)
+            .cloned()
+            .collect();
+        let (albedo_weight, containment_weight) = if masks_given {
+            (
+                settings.given_albedo_weight,
+                settings.given_containment_weight,
+            )
+        } else {
+            (settings.own_albedo_weight, settings.own_containment_weight)
+        };
+        Self::from_groups(albedo, width, height, [albedo_weight, containment_weight])
+    }
+
+    fn from_groups(
+        groups: Vec<MaskGroup>,
+        width: usize,
+        height: usize,
+        [albedo_weight, containment_weight]: [f32; 2],
+    ) -> Self {
+        let mut region = vec![0u32; width * height];
+        for (k, mask) in groups.iter().flat_map(|g| &g.masks).enumerate() {
+            for i in mask.indices() {
+                region[i] = k as u32;
+            }
+        }
+        Self {
+            albedo_weight,
+            containment_weight,
+            groups,
+            region,
+            width,
+            height,
+        }
+    }
+
+    /// The same at half size (masks sampled as [`halve_mask`] does).
+    pub fn halved(&self) -> Self {
+        let groups: Vec<MaskGroup> = self
+            .groups
+            .iter()
+            .map(|g| MaskGroup {
+                masks: g.masks.iter().map(halve_mask).collect(),
+                ..g.clone()
+            })
+            .collect();
+        Self::from_groups(
+            groups,
+            self.width.div_ceil(2),
+            self.height.div_ceil(2),
+            [self.albedo_weight, self.containment_weight],
+        )
+    }
+
+    /// Whether pixel `i` is inside region `parent`.
+    fn inside(&self, parent: u32, i: usize) -> bool {
+        self.region[i] == parent
+    }
+
+    /// The albedo groups ready for the structure loss (colours seeded as in the structure stage).
+    pub fn albedo_groups(&self, scene: &Scene, seed: u64) -> Vec<PreparedGroup> {
+        super::structure::prepare_groups(scene, &self.groups, self.width, self.height, seed)
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|g| g.paths != [0])
+            .collect()
+    }
+
+    /// Each path's parent: the region holding most of its coverage.
+    pub fn parents(&self, canvas: &mut Canvas, paths: &[Path]) -> Vec<u32> {
+        paths
+            .iter()
+            .map(|p| {
+                let mut share = std::collections::BTreeMap::new();
+                for (i, c) in canvas.coverage(p) {
+                    *share.entry(self.region[i as usize]).or_insert(0.0f32) += c;
+                }
+                share
+                    .into_iter()
+                    .max_by(|a, b| a.1.total_cmp(&b.1))
+                    .map_or(0, |(k, _)| k)
+            })
+            .collect()
+    }
+}
+
+/// Adds `weight` × the albedo groups' structure loss gradient (geometry and opacity) into
+/// `grads`; returns the weighted loss.
+pub(crate) fn albedo_term(
+    canvas: &mut Canvas,
+    paths: &[Path],
+    groups: &[PreparedGroup],
+    structure: &StructureSettings,
+    weight: f32,
+    grads: &mut [PathGrad],
+) -> f32 {
+    if weight <= 0.0 {
+        return 0.0;
+    }
+    let mut scratch = Scratch::default();
+    groups
+        .iter()
+        .map(|g| weight * structure_loss(canvas, paths, g, structure, weight, grads, &mut scratch))
+        .sum()
+}
+
+/// Adds the containment term of `paths` (each with its parent region) into `grads`: `weight` ×
+/// the mean over pixels of the paths' silhouettes outside their parents. Returns the term.
+pub(crate) fn containment_term(
+    canvas: &mut Canvas,
+    paths: &[Path],
+    parents: &[u32],
+    keep: &Keep,
+    grads: &mut [PathGrad],
+) -> f32 {
+    let weight = keep.containment_weight;
+    if weight <= 0.0 || paths.is_empty() {
+        return 0.0;
+    }
+    let n = (3 * keep.region.len()) as f32;
+    let mut distinct: Vec<u32> = parents.to_vec();
+    distinct.sort_unstable();
+    distinct.dedup();
+    let (mut render, mut d_out) = (Image::default(), Image::default());
+    let mut loss = 0.0;
+    for parent in distinct {
+        let members: Vec<usize> = (0..paths.len()).filter(|&k| parents[k] == parent).collect();
+        let silhouettes: Vec<Path> = members
+            .iter()
+            .map(|&k| Path {
+                points: paths[k].points.clone(),
+                color: [1.0; 3],
+                opacity: 1.0,
+            })
+            .collect();
+        canvas.render(&silhouettes, [0.0; 3], &mut render);
+        d_out.resize(render.width, render.height);
+        for i in 0..keep.region.len() {
+            let outside = if keep.inside(parent, i) {
+                0.0
+            } else {
+                weight / n
+            };
+            for c in 0..3 {
+                d_out.data[3 * i + c] = outside;
+                loss += outside * render.data[3 * i + c];
+            }
+        }
+        let mut local = PathGrad::zeros_like(&silhouettes);
+        canvas
+            .raster
+            .backward(&silhouettes, [0.0; 3], &d_out, &mut local);
+        for (&k, g) in members.iter().zip(&local) {
+            for (o, a) in grads[k].points.iter_mut().zip(&g.points) {
+                o.x += a.x;
+                o.y += a.y;
+            }
+        }
+    }
+    loss
 }

@@ -183,7 +183,7 @@ fn run_with(
         ..OptimiseSettings::default()
     };
     let mut optimisation =
-        Optimisation::from_parts(scene, groups, truth.image, mode, params, &settings)?;
+        Optimisation::from_parts(scene, groups, truth.image, mode, false, params, &settings)?;
     let context = RunContext::new(observer, cancel, mode.stages());
     for (index, spec) in mode.stages().iter().enumerate() {
         if !matches!(spec.kind, StageKind::Decompose | StageKind::Init) {
