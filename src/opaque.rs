@@ -4,11 +4,8 @@
 //!
 //! Exact, not an approximation: every part of the canvas covered by the same set of paths has
 //! one colour, computed from those paths as the renderer composites them. The regions come
-//! from boolean operations (`i_overlay`) on the paths flattened to polygons as covec's
-//! renderer flattens them (within [`FLATTEN_TOLERANCE`], at least [`MIN_LINES_PER_CUBIC`] lines
-//! per cubic): the regions' edges are then the very polygons the layered picture was drawn
-//! with, not chords cutting inside them (which cost 5-10% of the flattened picture's mean
-//! difference at 96 and 256 px, for about 30% more gzip bytes).
+//! from boolean operations (`i_overlay`) on the paths flattened to polygons within
+//! [`FLATTEN_TOLERANCE`].
 //!
 //! Painter's order, so that anti-aliasing shows no seams where regions meet: the paths are taken
 //! in drawing order (albedo, shade, light, each bottom to top), and each one adds its own pieces
@@ -20,10 +17,11 @@ use i_overlay::core::fill_rule::FillRule;
 use i_overlay::core::overlay_rule::OverlayRule;
 use i_overlay::float::single::SingleFloatOverlay;
 
-use crate::geom::bezier::{
-    FLATTEN_TOLERANCE, MIN_LINES_PER_CUBIC, flatten_into, lines_for_tolerance,
-};
+use crate::geom::bezier::{flatten_into, lines_for_tolerance};
 use crate::scene::{LayerKind, Path, Point, Scene};
+
+/// Largest distance, in working pixels, between a path's curve and the polygon standing for it.
+pub const FLATTEN_TOLERANCE: f32 = 0.1;
 
 /// One opaque region: closed contours filled together (even-odd and non-zero agree: the
 /// contours never cross, holes run opposite to their outer contour).
@@ -130,14 +128,14 @@ impl Bounds {
     }
 }
 
-/// `path`'s outline as the renderer's polygon.
+/// `path`'s outline as a polygon within [`FLATTEN_TOLERANCE`].
 fn polygon(path: &Path) -> Vec<[f64; 2]> {
     let mut vertices = Vec::new();
     for k in 0..path.segment_count() {
         let c = path.segment(k);
         flatten_into(
             &c,
-            lines_for_tolerance(&c, FLATTEN_TOLERANCE).max(MIN_LINES_PER_CUBIC),
+            lines_for_tolerance(&c, FLATTEN_TOLERANCE),
             &mut vertices,
         );
     }

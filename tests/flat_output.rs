@@ -19,8 +19,8 @@ const PHOTOS: [&str; 4] = [
 
 /// Largest mean absolute difference, in 1/255, between the flattened and the layered render
 /// (both as 8-bit images). Issue 19 asks for 1.0/255; this bound is what is reliably reached
-/// (README, "Flattened SVG and PDF: how close"). Measured at 96 px with 48 paths: covec
-/// 0.36-1.20, resvg 0.54-1.41, rsvg-convert 0.48-1.36, CairoSVG 0.52-1.38. Not a geometry error
+/// (README, "Flattened SVG and PDF in other programs"). Measured at 96 px with 48 paths: covec
+/// 0.44-1.31, resvg 0.50-1.40, rsvg-convert 0.54-1.42, CairoSVG 0.55-1.42. Not a geometry error
 /// (rendered 8× larger and averaged down, flattened and layered agree closely): anti-aliasing
 /// differs where several edges cross one pixel. The layered file anti-aliases each path on its
 /// own and composites the layers, multiplying coverages; opaque regions can only show each
@@ -241,7 +241,7 @@ fn pdftoppm_render(pdf: &[u8], dpi: u32) -> (u32, u32, Vec<f32>) {
 
 /// As [`MAX_MEAN_DIFF`] for the PDF in pdftoppm (issue 19 asks for 1.5/255): poppler's own
 /// anti-aliasing (Splash, 4×4 samples per pixel) adds to the multi-edge difference. Measured at
-/// 96 px with 48 paths: 1.03-2.02.
+/// 96 px with 48 paths: 1.02-2.01.
 const MAX_PDF_MEAN_DIFF: f32 = 2.2;
 
 #[test]

@@ -12,17 +12,6 @@ use crate::scene::Point;
 /// perimeter.
 pub const FLATTEN_TOLERANCE: f32 = 0.1;
 
-/// Fewest lines a cubic is flattened into by the renderer's tolerance flattening (`render::Flattening::Tolerance`).
-///
-/// The tolerance alone makes the *image* accurate but not the *gradients*: a nearly straight
-/// cubic would become one or two lines, and then its handles would get no gradient at all,
-/// although moving them does bend the curve. The flattened vertices carry the Bernstein weights
-/// at `t_k = k/n`, so the chained gradient is the true curve gradient up to piecewise-linear
-/// interpolation of those weights, an error of order `1/n²`; with 16 lines it is about 1%
-/// (measured on the DiffVG fixture: a straight-ish segment's anchor gradient is 0.65× the true
-/// value with the tolerance's 2 lines, within 1% of the 64-line value with 16).
-pub const MIN_LINES_PER_CUBIC: u32 = 16;
-
 /// Upper bound on the number of lines one cubic is flattened into. Only curves whose control
 /// polygon spans thousands of pixels hit it; beyond it the tolerance is no longer guaranteed.
 pub const MAX_LINES_PER_CUBIC: u32 = 1024;
