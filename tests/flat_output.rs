@@ -11,19 +11,21 @@ use covec::svg::{SvgOptions, to_flat_svg, to_svg};
 use resvg::{tiny_skia, usvg};
 
 const PHOTOS: [&str; 4] = [
-    "small_face_astronaut",
-    "small_face_hopper",
-    "small_scene_coffee",
-    "small_scene_chelsea",
+    "photo96_face_astronaut",
+    "photo96_face_hopper",
+    "photo96_scene_coffee",
+    "photo96_scene_chelsea",
 ];
 
-/// Largest mean absolute difference, in 1/255, between the flattened and the layered render.
-/// Issue 19 asks for 1.0/255. Measured at 48 px with 48 paths: covec 1.07-2.37, resvg
-/// 0.93-2.34, rsvg-convert 1.20-2.51, CairoSVG 1.19-2.49. Not a geometry error (rendered 8×
-/// larger and averaged down, flattened and layered agree within 0.51-0.76/255 with rsvg-convert,
-/// closer than the layered file's own 1× and 8× renders, 0.59-0.95): anti-aliasing differs where
-/// several edges cross one pixel, which a 48 px picture of 48 paths has in many pixels.
-const MAX_MEAN_DIFF: f32 = 2.6;
+/// Largest mean absolute difference, in 1/255, between the flattened and the layered render
+/// (both as 8-bit images). Issue 19 asks for 1.0/255; this bound is what is reliably reached
+/// (README, "Flattened SVG and PDF in other programs"). Measured at 96 px with 48 paths: covec
+/// 0.44-1.31, resvg 0.50-1.40, rsvg-convert 0.54-1.42, CairoSVG 0.55-1.42. Not a geometry error
+/// (rendered 8× larger and averaged down, flattened and layered agree closely): anti-aliasing
+/// differs where several edges cross one pixel. The layered file anti-aliases each path on its
+/// own and composites the layers, multiplying coverages; opaque regions can only show each
+/// region with its own exact area.
+const MAX_MEAN_DIFF: f32 = 1.5;
 
 fn vectorize(name: &str) -> Scene {
     let path = format!("{}/tests/fixtures/{name}.png", env!("CARGO_MANIFEST_DIR"));
@@ -63,6 +65,15 @@ fn resvg_render(svg: &str, w: u32, h: u32) -> Vec<f32> {
             let c = p.demultiply();
             [c.red(), c.green(), c.blue()].map(|v| f32::from(v) / 255.0)
         })
+        .collect()
+}
+
+/// `values` as an 8-bit image holds them (a PNG, or what a screen shows): every render compared
+/// here is such an image, and the reference must be one too.
+fn as_8bit(values: &[f32]) -> Vec<f32> {
+    values
+        .iter()
+        .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() / 255.0)
         .collect()
 }
 
@@ -121,15 +132,15 @@ fn flattened_svg_draws_the_layered_picture_without_blending() {
         }
         assert!(!flat.contains("blend") && !flat.contains("opacity"));
 
-        let reference = composite(&scene);
-        let ours = covec_render(&scene);
+        let reference = as_8bit(&composite(&scene).data);
+        let ours = as_8bit(&covec_render(&scene).data);
         let resvg_layered = resvg_render(&layered, w, h);
         let resvg_flat = resvg_render(&flat, w, h);
-        let covec_diff = mean_abs_255(&ours.data, &reference.data);
+        let covec_diff = mean_abs_255(&ours, &reference);
         let resvg_diff = mean_abs_255(&resvg_flat, &resvg_layered);
         // librsvg and CairoSVG lack the blend modes: against covec's render of the layers.
-        let rsvg_diff = mean_abs_255(&rsvg_render(&flat, w, h), &reference.data);
-        let cairo_diff = mean_abs_255(&cairosvg_render(&flat, w, h), &reference.data);
+        let rsvg_diff = mean_abs_255(&rsvg_render(&flat, w, h), &reference);
+        let cairo_diff = mean_abs_255(&cairosvg_render(&flat, w, h), &reference);
         let paths = doc.descendants().filter(|n| n.has_tag_name("path")).count();
         eprintln!(
             "{name}: {paths} flat paths, {} vs {} bytes layered ({} paths); covec {covec_diff:.3}/255, resvg {resvg_diff:.3}/255, rsvg-convert {rsvg_diff:.3}/255, CairoSVG {cairo_diff:.3}/255",
@@ -228,8 +239,14 @@ fn pdftoppm_render(pdf: &[u8], dpi: u32) -> (u32, u32, Vec<f32>) {
     })
 }
 
+/// As [`MAX_MEAN_DIFF`] for the PDF in pdftoppm (issue 19 asks for 1.5/255): poppler's own
+/// anti-aliasing (Splash, 4×4 samples per pixel) adds to the multi-edge difference. Measured at
+/// 96 px with 48 paths: 1.02-2.01.
+const MAX_PDF_MEAN_DIFF: f32 = 2.2;
+
 #[test]
 fn pdf_renders_as_the_layered_picture_in_poppler() {
+    let mut failures = Vec::new();
     for name in PHOTOS {
         let scene = vectorize(name);
         let pdf = covec::pdf::to_pdf(&scene);
@@ -237,11 +254,12 @@ fn pdf_renders_as_the_layered_picture_in_poppler() {
         // 96 dpi: one page pixel per original pixel; the fixtures are their working size.
         let (w, h, theirs) = pdftoppm_render(&pdf, 96);
         assert_eq!((w, h), (scene.width, scene.height), "{name}");
-        let reference = composite(&scene);
-        let diff = mean_abs_255(&theirs, &reference.data);
+        let reference = as_8bit(&composite(&scene).data);
+        let diff = mean_abs_255(&theirs, &reference);
         eprintln!("{name}: pdf {} bytes, pdftoppm {diff:.3}/255", pdf.len());
-        // Issue 19 asks for 1.5/255; measured 2.3-2.9 at 48 px (poppler anti-aliases the
-        // abutting pieces' edges less smoothly), 1.33 on a 256 px photo.
-        assert!(diff <= 3.5, "{name}: pdftoppm {diff:.3}/255");
+        if diff > MAX_PDF_MEAN_DIFF {
+            failures.push(format!("{name}: pdftoppm {diff:.3}/255"));
+        }
     }
+    assert!(failures.is_empty(), "{failures:?}");
 }
