@@ -24,7 +24,7 @@ import threading
 import time
 import urllib.request
 
-IMAGE = os.path.join(os.path.dirname(__file__), "../../tests/fixtures/small_face_hopper.png")
+IMAGE = os.path.join(os.path.dirname(__file__), "../../tests/fixtures/photo96_face_hopper.png")
 LISTINGS = [
     "/v1/jobs?status=running",
     "/v1/jobs?status=succeeded",
