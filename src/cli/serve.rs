@@ -19,6 +19,11 @@ pub struct ServeArgs {
     /// Directory for the job database and results (created if missing).
     #[arg(long, env = "COVEC_DATA_DIR", default_value_os_t = Config::default().data_dir)]
     data_dir: PathBuf,
+    /// Keep results and other job files in this S3-compatible bucket (`s3://bucket/prefix`)
+    /// instead of the data directory; credentials, region and endpoint come from the usual
+    /// AWS_* variables (AWS_ENDPOINT and AWS_ALLOW_HTTP=true for a local server).
+    #[arg(long, env = "COVEC_OBJECT_STORE")]
+    object_store: Option<String>,
     /// Jobs run at once; the pipeline threads are shared out among them.
     #[arg(long, env = "COVEC_WORKERS", default_value_t = QueueConfig::default().workers)]
     workers: usize,
@@ -113,6 +118,7 @@ impl ServeArgs {
         Config {
             addr: self.addr,
             data_dir: self.data_dir,
+            object_store: self.object_store,
             queue: QueueConfig {
                 workers: self.workers,
                 threads: self.threads.unwrap_or(defaults.threads),

@@ -60,6 +60,9 @@ pub struct Config {
     pub addr: SocketAddr,
     /// Job records and artefacts. Default `./covec-data`.
     pub data_dir: PathBuf,
+    /// Artefacts in this S3-compatible bucket (`s3://bucket/prefix`, credentials, region and
+    /// endpoint from the usual `AWS_*` variables) instead of the data directory. Default none.
+    pub object_store: Option<String>,
     /// Workers, queue length, time limit, retention.
     pub queue: QueueConfig,
     /// What one job may send and ask for.
@@ -84,6 +87,7 @@ impl Default for Config {
         Self {
             addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
             data_dir: PathBuf::from("covec-data"),
+            object_store: None,
             queue: QueueConfig::default(),
             limits: InputLimits::default(),
             connections: ConnectionLimits::default(),
@@ -149,7 +153,10 @@ impl AppState {
                 return Err(ServeError::CorsOrigin(origin.clone()));
             }
         }
-        let store = Arc::new(Store::open(&config.data_dir)?);
+        let store = Arc::new(Store::open(
+            &config.data_dir,
+            config.object_store.as_deref(),
+        )?);
         let metrics = Arc::new(Metrics::default());
         let queue = Queue::start(
             config.queue.clone(),

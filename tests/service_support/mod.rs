@@ -70,11 +70,17 @@ impl Reply {
 impl Server {
     /// Starts `covec serve --addr 127.0.0.1:0 --data-dir DIR ARGS…` and waits for its address.
     pub fn start(data_dir: &Path, args: &[&str]) -> Self {
+        Self::start_with_env(data_dir, args, &[])
+    }
+
+    /// [`Server::start`] with these environment variables added.
+    pub fn start_with_env(data_dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Self {
         let log = std::fs::File::create(data_dir.with_extension("log")).unwrap();
         let mut child = Command::new(env!("CARGO_BIN_EXE_covec"))
             .args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
             .arg(data_dir)
             .args(args)
+            .envs(env.iter().copied())
             .env("COVEC_LOG", "info")
             .stdout(Stdio::piped())
             .stderr(log)

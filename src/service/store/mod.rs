@@ -1,4 +1,5 @@
-//! Persistence in the data directory: job records in SQLite, artefacts as plain files.
+//! Persistence: job records in SQLite in the data directory, artefacts as files beside them or
+//! as objects in an S3-compatible bucket ([`Artefacts`]).
 //!
 //! Records go through rusqlite rather than sqlx: every access is a short synchronous statement
 //! made from a worker thread or a `spawn_blocking` task, so an async driver buys nothing, and
@@ -6,141 +7,28 @@
 //! build quick. The table holds one JSON record per job keyed by id; a PostgreSQL store would
 //! keep the same shape.
 //!
-//! Artefacts live under `jobs/<id>/` and are written atomically (temporary file, fsync, rename),
+//! Artefacts live under `jobs/<id>/` and are written whole or not at all (see [`Artefacts`]),
 //! so a crash never leaves a half-written file under a served name.
 
 use std::collections::BTreeMap;
 use std::fs;
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Mutex;
 use std::time::Duration;
 
 use rusqlite::{Connection, params};
 use sha2::{Digest, Sha256};
 
-use super::error::ApiError;
+mod artefacts;
+mod error;
+
 use super::model::{JobRecord, Status, is_job_id, now_ms};
-
-#[derive(Debug, thiserror::Error)]
-pub enum StoreError {
-    #[error("data directory {path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("job database: {0}")]
-    Sqlite(#[from] rusqlite::Error),
-    #[error("job record {id} is corrupt: {reason}")]
-    CorruptRecord { id: String, reason: String },
-}
-
-impl StoreError {
-    /// What failed without where: clients never see the data directory's paths (they stay in
-    /// the server log).
-    pub fn public_detail(&self) -> String {
-        match self {
-            StoreError::Io { source, .. } => format!("storage: {source}"),
-            StoreError::Sqlite(error) => format!("job database: {error}"),
-            StoreError::CorruptRecord { id, .. } => format!("job record {id} is corrupt"),
-        }
-    }
-}
-
-impl StoreError {
-    /// Whether the same operation may succeed if tried again shortly: the failure is about the
-    /// moment (a full disk or quota, no file descriptor or memory left, an interrupted or timed
-    /// out call, a busy or locked database), not the data or the directory's permissions (read
-    /// only, permission denied, missing, corrupt), which no retry fixes.
-    pub fn is_transient(&self) -> bool {
-        use std::io::ErrorKind;
-        match self {
-            StoreError::Io { source, .. } => {
-                matches!(
-                    source.kind(),
-                    ErrorKind::Interrupted
-                        | ErrorKind::WouldBlock
-                        | ErrorKind::TimedOut
-                        | ErrorKind::StorageFull
-                        | ErrorKind::QuotaExceeded
-                        | ErrorKind::ResourceBusy
-                        | ErrorKind::OutOfMemory
-                ) || out_of_descriptors(source)
-            }
-            StoreError::Sqlite(rusqlite::Error::SqliteFailure(error, _)) => matches!(
-                error.code,
-                rusqlite::ErrorCode::DatabaseBusy
-                    | rusqlite::ErrorCode::DatabaseLocked
-                    | rusqlite::ErrorCode::DiskFull
-                    | rusqlite::ErrorCode::OutOfMemory
-            ),
-            StoreError::Sqlite(_) | StoreError::CorruptRecord { .. } => false,
-        }
-    }
-}
-
-/// Out of file descriptors (`EMFILE`, `ENFILE`), for which std has no error kind.
-fn out_of_descriptors(error: &std::io::Error) -> bool {
-    #[cfg(target_os = "linux")]
-    return matches!(error.raw_os_error(), Some(libc::EMFILE | libc::ENFILE));
-    #[cfg(not(target_os = "linux"))]
-    return false;
-}
-
-/// The waits before each retry of a job's own storage operation that failed transiently
-/// ([`retry_transient`]): 6.2 s in all, time for a burst of connections to close or for
-/// expired results to free space.
-pub const RETRY_DELAYS: [Duration; 5] = [
-    Duration::from_millis(200),
-    Duration::from_millis(400),
-    Duration::from_millis(800),
-    Duration::from_millis(1600),
-    Duration::from_millis(3200),
-];
-
-/// Runs `operation`, and again after each of [`RETRY_DELAYS`] while it fails transiently
-/// ([`StoreError::is_transient`]), logging each retry; any other error, or the last transient
-/// one, is returned. Blocking (it sleeps): for the job runners, whose work would otherwise be
-/// lost. A request handler does not retry: its client gets a 5xx and may.
-pub fn retry_transient<T>(
-    what: &str,
-    mut operation: impl FnMut() -> Result<T, StoreError>,
-) -> Result<T, StoreError> {
-    let mut delays = RETRY_DELAYS.iter();
-    loop {
-        match operation() {
-            Err(error) if error.is_transient() => {
-                let Some(delay) = delays.next() else {
-                    return Err(error);
-                };
-                tracing::warn!(
-                    %error,
-                    retry_in_ms = delay.as_millis() as u64,
-                    "{what}: transient storage error, retrying"
-                );
-                std::thread::sleep(*delay);
-            }
-            result => return result,
-        }
-    }
-}
-
-impl From<StoreError> for ApiError {
-    fn from(error: StoreError) -> Self {
-        tracing::error!(%error, "storage error");
-        ApiError::Internal(error.public_detail())
-    }
-}
-
-fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
-    move |source| StoreError::Io {
-        path: path.to_owned(),
-        source,
-    }
-}
+use artefacts::Artefacts;
+use error::io_error;
+pub use error::{StoreError, retry_transient};
 
 pub struct Store {
-    root: PathBuf,
+    artefacts: Artefacts,
     db: Mutex<Connection>,
     reader: Mutex<Connection>,
 }
@@ -155,9 +43,11 @@ pub struct Recovered {
 
 impl Store {
     /// Opens (creating if needed) the data directory and its database, adding the listing
-    /// columns and indexes to a database written before they existed.
-    pub fn open(root: &Path) -> Result<Self, StoreError> {
-        fs::create_dir_all(root.join("jobs")).map_err(io_error(root))?;
+    /// columns and indexes to a database written before they existed; artefacts go to the
+    /// data directory or, given `object_store` (`s3://bucket/prefix`), to that bucket.
+    pub fn open(root: &Path, object_store: Option<&str>) -> Result<Self, StoreError> {
+        fs::create_dir_all(root).map_err(io_error(root))?;
+        let artefacts = Artefacts::open(root, object_store)?;
         let path = root.join("jobs.sqlite3");
         let db = Connection::open(&path)?;
         // WAL: readers never block the writer; NORMAL sync is durable across process crashes.
@@ -190,7 +80,7 @@ impl Store {
         // (rusqlite's connections wait up to 5 s for a lock held by the other).
         let reader = Connection::open(&path)?;
         Ok(Self {
-            root: root.to_owned(),
+            artefacts,
             db: Mutex::new(db),
             reader: Mutex::new(reader),
         })
@@ -329,37 +219,31 @@ impl Store {
     /// its files before its record. `keep` says whether a directory is a live job's.
     /// Returns how many were removed.
     pub fn sweep_orphans(&self, min_age: Duration, keep: impl Fn(&str) -> bool) -> usize {
-        let jobs = self.root.join("jobs");
-        let Ok(entries) = fs::read_dir(&jobs) else {
-            return 0;
+        let ages = match self.artefacts.job_ages() {
+            Ok(ages) => ages,
+            Err(error) => {
+                tracing::warn!(%error, "listing job folders for the orphan sweep");
+                return 0;
+            }
         };
         let mut removed = 0;
-        for entry in entries.flatten() {
-            let name = entry.file_name().to_string_lossy().into_owned();
-            let old_enough = entry
-                .metadata()
-                .and_then(|metadata| metadata.modified())
-                .is_ok_and(|modified| modified.elapsed().is_ok_and(|age| age >= min_age));
-            if !old_enough || keep(&name) || !matches!(self.has_record(&name), Ok(false)) {
+        for (id, age) in ages {
+            if age < min_age || keep(&id) || !matches!(self.has_record(&id), Ok(false)) {
                 continue;
             }
-            match fs::remove_dir_all(entry.path()) {
+            match self.artefacts.remove_job(&id) {
                 Ok(()) => removed += 1,
                 Err(error) => {
-                    tracing::warn!(dir = %name, %error, "removing an orphaned job directory")
+                    tracing::warn!(dir = %id, %error, "removing an orphaned job directory")
                 }
             }
         }
         removed
     }
 
-    pub fn job_dir(&self, id: &str) -> PathBuf {
-        self.root.join("jobs").join(id)
-    }
-
-    /// Writes `bytes` to `jobs/<id>/<name>` atomically.
+    /// Writes `jobs/<id>/<name>` whole or not at all.
     pub fn write_artefact(&self, id: &str, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
-        write_atomic(&self.job_dir(id).join(name), bytes)
+        self.artefacts.write(id, name, bytes)
     }
 
     /// Records the SHA-256 of files stored together under `jobs/<id>/<folder>/` (an edit's
@@ -396,58 +280,27 @@ impl Store {
 
     /// Reads `jobs/<id>/<name>`; `None` when it does not exist.
     pub fn read_artefact(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>, StoreError> {
-        let path = self.job_dir(id).join(name);
-        match fs::read(&path) {
-            Ok(bytes) => Ok(Some(bytes)),
-            Err(error) if error.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(error) => Err(io_error(&path)(error)),
-        }
+        self.artefacts.read(id, name)
     }
 
     /// Whether `jobs/<id>/<name>` exists, without reading it.
     pub fn has_artefact(&self, id: &str, name: &str) -> Result<bool, StoreError> {
-        let path = self.job_dir(id).join(name);
-        path.try_exists().map_err(io_error(&path))
+        self.artefacts.exists(id, name)
     }
 
     /// Removes every file of a job; missing files are not an error.
     pub fn remove_artefacts(&self, id: &str) -> Result<(), StoreError> {
-        let dir = self.job_dir(id);
-        match fs::remove_dir_all(&dir) {
-            Err(error) if error.kind() != std::io::ErrorKind::NotFound => {
-                Err(io_error(&dir)(error))
-            }
-            _ => Ok(()),
-        }
+        self.artefacts.remove_job(id)
     }
 
     /// Removes what a run produced (previews and results), keeping the inputs for a re-run.
     pub fn remove_outputs(&self, id: &str) -> Result<(), StoreError> {
-        let dir = self.job_dir(id);
-        for name in ["previews", "layers"] {
-            let path = dir.join(name);
-            match fs::remove_dir_all(&path) {
-                Err(error) if error.kind() != std::io::ErrorKind::NotFound => {
-                    return Err(io_error(&path)(error));
-                }
-                _ => {}
-            }
-        }
-        for name in ["scene.json", "result.svg"] {
-            let path = dir.join(name);
-            match fs::remove_file(&path) {
-                Err(error) if error.kind() != std::io::ErrorKind::NotFound => {
-                    return Err(io_error(&path)(error));
-                }
-                _ => {}
-            }
-        }
-        Ok(())
+        self.artefacts.remove_outputs(id)
     }
 
-    /// Checks that the data directory accepts writes and the database answers (for `/readyz`).
+    /// Checks that the artefact storage accepts writes and the database answers (for `/readyz`).
     pub fn check(&self) -> Result<(), StoreError> {
-        write_atomic(&self.root.join(".ready-check"), b"ok")?;
+        self.artefacts.check()?;
         self.db().query_row("SELECT 1", [], |_| Ok(()))?;
         Ok(())
     }
@@ -473,28 +326,4 @@ const FOLDER_DIGESTS: &str = "checksums.json";
 /// SHA-256 of a stored file in hex, recorded when it is written and checked when it is served.
 pub fn digest(bytes: &[u8]) -> String {
     super::submit::hex(&Sha256::digest(bytes))
-}
-
-/// Temporary file in the same directory, fsync, rename over the target.
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), StoreError> {
-    let dir = path.parent().expect("artefact paths have a parent");
-    fs::create_dir_all(dir).map_err(io_error(dir))?;
-    let file_name = path
-        .file_name()
-        .expect("artefact paths name a file")
-        .to_string_lossy();
-    let temporary = dir.join(format!(
-        ".{file_name}.{}.tmp",
-        uuid::Uuid::now_v7().simple()
-    ));
-    let result = (|| {
-        let mut file = fs::File::create(&temporary)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
-        fs::rename(&temporary, path)
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&temporary);
-    }
-    result.map_err(io_error(path))
 }

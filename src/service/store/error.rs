@@ -1,0 +1,145 @@
+//! The one storage error, what a client may see of it, and which failures are worth a retry.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use crate::service::error::ApiError;
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("data directory {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("job database: {0}")]
+    Sqlite(#[from] rusqlite::Error),
+    #[error("job record {id} is corrupt: {reason}")]
+    CorruptRecord { id: String, reason: String },
+    /// A request to the object store failed (after object_store's own retries).
+    #[error("object store: {0}")]
+    ObjectStore(#[from] object_store::Error),
+    #[error("object store `{url}`: {reason}")]
+    ObjectStoreUrl { url: String, reason: String },
+    /// The object store's runtime stopped while a request was waiting (shutdown).
+    #[error("object store: stopped")]
+    ObjectStoreStopped,
+}
+
+impl StoreError {
+    /// What failed without where: clients never see the data directory's paths (they stay in
+    /// the server log).
+    pub fn public_detail(&self) -> String {
+        match self {
+            StoreError::Io { source, .. } => format!("storage: {source}"),
+            StoreError::Sqlite(error) => format!("job database: {error}"),
+            StoreError::CorruptRecord { id, .. } => format!("job record {id} is corrupt"),
+            // object_store's messages name the bucket and endpoint.
+            StoreError::ObjectStore(object_store::Error::NotFound { .. }) => {
+                "object store: not found".to_owned()
+            }
+            StoreError::ObjectStore(_) | StoreError::ObjectStoreStopped => {
+                "object store: request failed".to_owned()
+            }
+            StoreError::ObjectStoreUrl { .. } => "object store: misconfigured".to_owned(),
+        }
+    }
+}
+
+impl StoreError {
+    /// Whether the same operation may succeed if tried again shortly: the failure is about the
+    /// moment (a full disk or quota, no file descriptor or memory left, an interrupted or timed
+    /// out call, a busy or locked database), not the data or the directory's permissions (read
+    /// only, permission denied, missing, corrupt), which no retry fixes.
+    pub fn is_transient(&self) -> bool {
+        use std::io::ErrorKind;
+        match self {
+            StoreError::Io { source, .. } => {
+                matches!(
+                    source.kind(),
+                    ErrorKind::Interrupted
+                        | ErrorKind::WouldBlock
+                        | ErrorKind::TimedOut
+                        | ErrorKind::StorageFull
+                        | ErrorKind::QuotaExceeded
+                        | ErrorKind::ResourceBusy
+                        | ErrorKind::OutOfMemory
+                ) || out_of_descriptors(source)
+            }
+            StoreError::Sqlite(rusqlite::Error::SqliteFailure(error, _)) => matches!(
+                error.code,
+                rusqlite::ErrorCode::DatabaseBusy
+                    | rusqlite::ErrorCode::DatabaseLocked
+                    | rusqlite::ErrorCode::DiskFull
+                    | rusqlite::ErrorCode::OutOfMemory
+            ),
+            // object_store already retried network failures, 5xx and 429 ([`Artefacts`]).
+            StoreError::Sqlite(_)
+            | StoreError::CorruptRecord { .. }
+            | StoreError::ObjectStore(_)
+            | StoreError::ObjectStoreUrl { .. }
+            | StoreError::ObjectStoreStopped => false,
+        }
+    }
+}
+
+/// Out of file descriptors (`EMFILE`, `ENFILE`), for which std has no error kind.
+fn out_of_descriptors(error: &std::io::Error) -> bool {
+    #[cfg(target_os = "linux")]
+    return matches!(error.raw_os_error(), Some(libc::EMFILE | libc::ENFILE));
+    #[cfg(not(target_os = "linux"))]
+    return false;
+}
+
+/// The waits before each retry of a job's own storage operation that failed transiently
+/// ([`retry_transient`]): 6.2 s in all, time for a burst of connections to close or for
+/// expired results to free space.
+pub const RETRY_DELAYS: [Duration; 5] = [
+    Duration::from_millis(200),
+    Duration::from_millis(400),
+    Duration::from_millis(800),
+    Duration::from_millis(1600),
+    Duration::from_millis(3200),
+];
+
+/// Runs `operation`, and again after each of [`RETRY_DELAYS`] while it fails transiently
+/// ([`StoreError::is_transient`]), logging each retry; any other error, or the last transient
+/// one, is returned. Blocking (it sleeps): for the job runners, whose work would otherwise be
+/// lost. A request handler does not retry: its client gets a 5xx and may.
+pub fn retry_transient<T>(
+    what: &str,
+    mut operation: impl FnMut() -> Result<T, StoreError>,
+) -> Result<T, StoreError> {
+    let mut delays = RETRY_DELAYS.iter();
+    loop {
+        match operation() {
+            Err(error) if error.is_transient() => {
+                let Some(delay) = delays.next() else {
+                    return Err(error);
+                };
+                tracing::warn!(
+                    %error,
+                    retry_in_ms = delay.as_millis() as u64,
+                    "{what}: transient storage error, retrying"
+                );
+                std::thread::sleep(*delay);
+            }
+            result => return result,
+        }
+    }
+}
+
+impl From<StoreError> for ApiError {
+    fn from(error: StoreError) -> Self {
+        tracing::error!(%error, "storage error");
+        ApiError::Internal(error.public_detail())
+    }
+}
+
+/// Wraps an I/O error with the path it concerns (kept for the log, never shown to clients).
+pub(super) fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
+    move |source| StoreError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
