@@ -4,34 +4,9 @@
 
 mod service_support;
 
-use std::time::Duration;
-
 use hyper::{Method, StatusCode};
 use serde_json::json;
-use service_support::{DataDir, QUICK_PARAMS, Server, multipart, png, problem, test_png};
-
-const PATIENCE: Duration = Duration::from_secs(60);
-
-async fn finished_job(server: &Server) -> String {
-    let created = server
-        .submit(
-            &[
-                ("image", &test_png(48)),
-                ("params", QUICK_PARAMS.as_bytes()),
-            ],
-            &[],
-        )
-        .await;
-    assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
-    let id = created.json()["id"].as_str().unwrap().to_owned();
-    let job = server
-        .wait_for(&id, PATIENCE, |j| {
-            j["status"] != "queued" && j["status"] != "running"
-        })
-        .await;
-    assert_eq!(job["status"], "succeeded", "{job}");
-    id
-}
+use service_support::{DataDir, Server, multipart, png, problem, test_png};
 
 async fn post_reference(
     server: &Server,
@@ -53,7 +28,7 @@ async fn post_reference(
 async fn direct_recolour_by_id_and_point_keeps_the_rest() {
     let dir = DataDir::new("edits-direct");
     let server = Server::start(&dir.0, &["--workers", "1"]);
-    let id = finished_job(&server).await;
+    let id = server.finished_job().await;
     let original = server.get(&format!("/v1/jobs/{id}/svg")).await.text();
 
     let created = server
@@ -127,7 +102,7 @@ async fn direct_recolour_by_id_and_point_keeps_the_rest() {
 async fn recolour_by_reference_changes_the_edited_region() {
     let dir = DataDir::new("edits-reference");
     let server = Server::start(&dir.0, &["--workers", "1"]);
-    let id = finished_job(&server).await;
+    let id = server.finished_job().await;
     // The test image with its red disc turned green.
     let image = image::load_from_memory(&test_png(48)).unwrap().to_rgb8();
     let edited = image::RgbImage::from_fn(48, 48, |x, y| {
@@ -159,7 +134,7 @@ async fn recolour_by_reference_changes_the_edited_region() {
 async fn bad_edits_are_4xx_problems() {
     let dir = DataDir::new("edits-bad");
     let server = Server::start(&dir.0, &["--workers", "1"]);
-    let id = finished_job(&server).await;
+    let id = server.finished_job().await;
     let path = format!("/v1/jobs/{id}/edits");
     let cases = [
         (
@@ -263,7 +238,7 @@ async fn bad_edits_are_4xx_problems() {
 async fn edits_are_capped_and_their_files_served_without_the_record() {
     let dir = DataDir::new("edits-capped");
     let server = Server::start(&dir.0, &["--workers", "1", "--max-pixels", "4000"]);
-    let id = finished_job(&server).await;
+    let id = server.finished_job().await;
     let path = format!("/v1/jobs/{id}/edits");
     let change = json!({"path": "albedo-0", "color": "#123456"});
     let reply = server

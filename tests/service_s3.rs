@@ -9,7 +9,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use hyper::{Method, StatusCode};
-use service_support::{DataDir, QUICK_PARAMS, Server, test_png};
+use service_support::{DataDir, Server};
 
 const BUCKET: &str = "covec-test";
 const PREFIX: &str = "team/covec";
@@ -95,28 +95,6 @@ fn start_covec(dir: &DataDir, s3: &S3Server) -> Server {
     )
 }
 
-async fn finished_job(server: &Server) -> String {
-    let image = test_png(32);
-    let created = server
-        .submit(
-            &[
-                ("image", image.as_slice()),
-                ("params", QUICK_PARAMS.as_bytes()),
-            ],
-            &[],
-        )
-        .await;
-    assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
-    let id = created.json()["id"].as_str().unwrap().to_owned();
-    let job = server
-        .wait_for(&id, Duration::from_secs(60), |job| {
-            job["status"] != "queued" && job["status"] != "running"
-        })
-        .await;
-    assert_eq!(job["status"], "succeeded", "{job}");
-    id
-}
-
 #[tokio::test]
 async fn results_live_in_the_bucket_survive_a_restart_and_go_with_delete() {
     let s3 = S3Server::start();
@@ -130,7 +108,7 @@ async fn results_live_in_the_bucket_survive_a_restart_and_go_with_delete() {
         !s3.keys(PREFIX).contains(&orphan),
         "the orphaned upload was not swept"
     );
-    let id = finished_job(&server).await;
+    let id = server.finished_job().await;
     let svg = server.get(&format!("/v1/jobs/{id}/svg")).await;
     assert_eq!(svg.status, StatusCode::OK);
     assert!(svg.text().contains("<svg"));
@@ -176,7 +154,7 @@ async fn an_unreachable_bucket_is_not_ready_and_fails_results_with_a_problem() {
     s3.curl("PUT", &format!("/{BUCKET}"));
     let dir = DataDir::new("s3-down");
     let server = start_covec(&dir, &s3);
-    let id = finished_job(&server).await;
+    let id = server.finished_job().await;
     drop(s3);
     let ready = server.get("/readyz").await;
     assert_eq!(

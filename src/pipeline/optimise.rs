@@ -207,14 +207,7 @@ impl<'a> Optimisation<'a> {
         };
         let (settings, mode) = (&self.settings.structure, self.mode);
         let keep = self.keep.take();
-        let run = |k| KeepRun {
-            keep: k,
-            seed: self.params.seed,
-        };
-        let (full, half) = match &keep {
-            Some([full, half]) => (Some(run(full)), Some(run(half))),
-            None => (None, None),
-        };
+        let (full, half) = keep_runs(&keep, self.params.seed);
         let coarse = self.coarse(|small, small_target| {
             optimise_reconstruction(
                 small,
@@ -287,14 +280,7 @@ impl<'a> Optimisation<'a> {
             ..self.settings.refine.clone()
         };
         let keep = self.keep.take();
-        let run = |k| KeepRun {
-            keep: k,
-            seed: self.params.seed,
-        };
-        let (full, half) = match &keep {
-            Some([full, half]) => (Some(run(full)), Some(run(half))),
-            None => (None, None),
-        };
+        let (full, half) = keep_runs(&keep, self.params.seed);
         let plan = |start: u32, count: u32, settings, keep| RefinePlan {
             growth,
             keep,
@@ -347,5 +333,17 @@ impl<'a> Optimisation<'a> {
         )?;
         self.record(stage, before, after);
         Ok(())
+    }
+}
+
+/// The kept terms at full and half size, for a stage that runs its coarse part on the halved
+/// canvas and then the rest at full size.
+fn keep_runs(keep: &Option<[Keep; 2]>, seed: u64) -> (Option<KeepRun<'_>>, Option<KeepRun<'_>>) {
+    match keep {
+        Some([full, half]) => (
+            Some(KeepRun { keep: full, seed }),
+            Some(KeepRun { keep: half, seed }),
+        ),
+        None => (None, None),
     }
 }

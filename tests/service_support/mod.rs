@@ -208,6 +208,30 @@ impl Server {
         self.request(Method::POST, "/v1/jobs", &all, body).await
     }
 
+    /// Submits a quick job (a 48 px test image, [`QUICK_PARAMS`]) and waits, at most a minute,
+    /// for it to succeed; returns its id.
+    pub async fn finished_job(&self) -> String {
+        let image = test_png(48);
+        let created = self
+            .submit(
+                &[
+                    ("image", image.as_slice()),
+                    ("params", QUICK_PARAMS.as_bytes()),
+                ],
+                &[],
+            )
+            .await;
+        assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
+        let id = created.json()["id"].as_str().unwrap().to_owned();
+        let job = self
+            .wait_for(&id, Duration::from_secs(60), |job| {
+                job["status"] != "queued" && job["status"] != "running"
+            })
+            .await;
+        assert_eq!(job["status"], "succeeded", "{job}");
+        id
+    }
+
     /// Polls a job until `done` holds for it, at most `timeout`.
     pub async fn wait_for(
         &self,
