@@ -111,8 +111,6 @@ pub struct AppState {
     /// Becomes true when the server begins to stop (ends event streams).
     shutdown: watch::Sender<bool>,
     max_wait: Duration,
-    /// [`InputLimits::decode_slots`].
-    decode_slots: Arc<tokio::sync::Semaphore>,
     /// Bounds the PNG renders running at once ([`results::PNG_RENDERS`]).
     png_renders: Arc<tokio::sync::Semaphore>,
     webhooks: Arc<webhooks::Webhooks>,
@@ -180,9 +178,6 @@ impl AppState {
             cors_origins: Arc::new(config.cors_origins.clone()),
             shutdown: watch::Sender::new(false),
             max_wait: config.max_wait,
-            decode_slots: Arc::new(tokio::sync::Semaphore::new(
-                config.limits.decode_slots.max(1),
-            )),
             png_renders: Arc::new(tokio::sync::Semaphore::new(results::PNG_RENDERS)),
         })
     }
@@ -192,7 +187,7 @@ impl AppState {
     /// A permit to decode one request's images: waits up to [`InputLimits::decode_wait`] for
     /// one of the [`InputLimits::decode_slots`], then refuses with 503 `decode-busy`.
     async fn decode_slot(&self) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
-        let permit = Arc::clone(&self.decode_slots).acquire_owned();
+        let permit = self.queue.decode_slots().acquire_owned();
         let wait = self.limits.decode_wait;
         match tokio::time::timeout(wait, permit).await {
             Ok(permit) => permit.map_err(|error| ApiError::Internal(error.to_string())),
@@ -507,7 +502,9 @@ mod tests {
             ..InputLimits::default()
         };
         let (state, data_dir) = state_with("decode-busy", limits);
-        let held = Arc::clone(&state.decode_slots)
+        let held = state
+            .queue
+            .decode_slots()
             .acquire_many_owned(2)
             .await
             .unwrap();

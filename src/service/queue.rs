@@ -112,6 +112,10 @@ pub struct Queue {
     store: Arc<Store>,
     metrics: Arc<Metrics>,
     runtime: tokio::runtime::Handle,
+    /// [`InputLimits::decode_slots`], shared by the requests that decode a submission and the
+    /// runners that decode a job's stored inputs: both hold a full-size decode in memory, so
+    /// both count against one bound.
+    decode_slots: Arc<tokio::sync::Semaphore>,
     state: Mutex<State>,
     /// Signalled when a job is queued, a job ends, or draining starts.
     changed: Condvar,
@@ -163,6 +167,7 @@ impl Queue {
             running: 0,
             draining: false,
         };
+        let decode_slots = Arc::new(tokio::sync::Semaphore::new(limits.decode_slots.max(1)));
         let recovered = store.recover()?;
         metrics.set_quarantined(recovered.quarantined.len());
         for mut record in recovered.records {
@@ -191,6 +196,7 @@ impl Queue {
             store,
             metrics,
             runtime: tokio::runtime::Handle::current(),
+            decode_slots,
             state: Mutex::new(state),
             changed: Condvar::new(),
             runners_alive: AtomicUsize::new(0),
@@ -222,6 +228,11 @@ impl Queue {
 
     pub fn workers(&self) -> usize {
         self.config.workers
+    }
+
+    /// The decode slots (see the field).
+    pub fn decode_slots(&self) -> Arc<tokio::sync::Semaphore> {
+        Arc::clone(&self.decode_slots)
     }
 
     pub fn store(&self) -> &Store {
@@ -670,6 +681,10 @@ impl Queue {
                     ))
                 })
                 .collect::<Result<Vec<_>, ApiError>>()?;
+            // A runner waits for its slot as long as it takes (the semaphore is never closed).
+            let _slot = self
+                .runtime
+                .block_on(Arc::clone(&self.decode_slots).acquire_owned());
             decode_inputs(
                 &image,
                 albedo.as_deref(),
