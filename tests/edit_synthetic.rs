@@ -5,28 +5,20 @@
 
 use std::sync::atomic::AtomicBool;
 
+mod pipeline_support;
+
 use covec::edit::{ReferenceParams, recolor_by_reference};
-use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet};
+use covec::pipeline::{self, Inputs, Masks, Mode, Quiet};
 use covec::render::Image;
 use covec::render::composite::composite;
 use covec::scene::Scene;
 use covec::synth::{self, SyntheticScene};
+use pipeline_support::quick_params;
 
 const SIZE: usize = 64;
 
 fn vectorize(truth: &SyntheticScene, mode: Mode) -> Scene {
-    let params = Params {
-        paths: 32,
-        mode,
-        iterations: Iterations {
-            structure: 20,
-            reconstruction: 30,
-            refine_rounds: 3,
-            refine: 30,
-            polish: 20,
-        },
-        ..Params::default()
-    };
+    let params = quick_params(mode);
     let inputs = Inputs {
         image: image::DynamicImage::ImageRgb8(synth::to_rgb8(&truth.image)),
         albedo: None,

@@ -6,12 +6,15 @@
 
 use std::sync::atomic::AtomicBool;
 
+mod pipeline_support;
+
 use covec::eval::intrinsic::Truth;
 use covec::eval::vec::iou;
-use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet};
+use covec::pipeline::{self, Inputs, Masks, Mode, Quiet};
 use covec::render::{Image, Rasterizer};
 use covec::scene::{Path, Scene};
 use covec::synth;
+use pipeline_support::quick_params;
 
 const SIZE: usize = 64;
 /// Label of the painted disc (the scene's own labels are 0 floor, 1 wall, 2 + k sphere k).
@@ -43,18 +46,7 @@ fn scene_with_disc() -> (Image, image::DynamicImage, Vec<Vec<bool>>) {
 }
 
 fn vectorize(image: &Image, labels: image::DynamicImage) -> Scene {
-    let params = Params {
-        paths: 32,
-        mode: Mode::Photo,
-        iterations: Iterations {
-            structure: 20,
-            reconstruction: 30,
-            refine_rounds: 3,
-            refine: 30,
-            polish: 20,
-        },
-        ..Params::default()
-    };
+    let params = quick_params(Mode::Photo);
     let inputs = Inputs {
         image: image::DynamicImage::ImageRgb8(synth::to_rgb8(image)),
         albedo: None,

@@ -4,30 +4,18 @@
 
 use std::sync::atomic::AtomicBool;
 
-use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet};
+mod pipeline_support;
+
+use covec::pipeline::{self, Inputs, Masks, Mode, Quiet};
 use covec::render::Image;
 use covec::render::Rasterizer;
 use covec::render::composite::composite;
 use covec::scene::{LayerKind, Scene};
 use covec::svg::{SvgOptions, to_svg};
 use covec::synth::{self, SyntheticScene, scale_invariant_mse};
+use pipeline_support::quick_params;
 
 const SIZE: usize = 64;
-
-fn params() -> Params {
-    Params {
-        paths: 32,
-        mode: Mode::Photo,
-        iterations: Iterations {
-            structure: 20,
-            reconstruction: 30,
-            refine_rounds: 3,
-            refine: 30,
-            polish: 20,
-        },
-        ..Params::default()
-    }
-}
 
 fn vectorize(truth: &SyntheticScene) -> Scene {
     let inputs = Inputs {
@@ -35,9 +23,14 @@ fn vectorize(truth: &SyntheticScene) -> Scene {
         albedo: None,
         masks: Masks::None,
     };
-    pipeline::run(&inputs, &params(), &Quiet, &AtomicBool::new(false))
-        .unwrap()
-        .scene
+    pipeline::run(
+        &inputs,
+        &quick_params(Mode::Photo),
+        &Quiet,
+        &AtomicBool::new(false),
+    )
+    .unwrap()
+    .scene
 }
 
 fn render_layer(scene: &Scene, kind: LayerKind) -> Image {
