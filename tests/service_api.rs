@@ -246,13 +246,9 @@ async fn api_keys_guard_v1_and_jobs_are_private_to_their_key() {
     assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
     let id = created.json()["id"].as_str().unwrap().to_owned();
 
-    let own = server
-        .request(Method::GET, &format!("/v1/jobs/{id}"), &alpha, Vec::new())
-        .await;
+    let own = server.get_with(&format!("/v1/jobs/{id}"), &alpha).await;
     assert_eq!(own.status, StatusCode::OK);
-    let other = server
-        .request(Method::GET, &format!("/v1/jobs/{id}"), &beta, Vec::new())
-        .await;
+    let other = server.get_with(&format!("/v1/jobs/{id}"), &beta).await;
     assert_eq!(other.status, StatusCode::NOT_FOUND);
     assert_eq!(problem(&other)["code"], "job-not-found");
     let other_cancel = server
@@ -264,15 +260,9 @@ async fn api_keys_guard_v1_and_jobs_are_private_to_their_key() {
         )
         .await;
     assert_eq!(other_cancel.status, StatusCode::NOT_FOUND);
-    let other_list = server
-        .request(Method::GET, "/v1/jobs", &beta, Vec::new())
-        .await
-        .json();
+    let other_list = server.get_with("/v1/jobs", &beta).await.json();
     assert_eq!(other_list["items"], json!([]));
-    let own_list = server
-        .request(Method::GET, "/v1/jobs", &alpha, Vec::new())
-        .await
-        .json();
+    let own_list = server.get_with("/v1/jobs", &alpha).await.json();
     assert_eq!(own_list["items"][0]["id"], id.as_str());
 }
 

@@ -753,12 +753,7 @@ async fn png_flattened_svg_and_pdf_are_served_as_the_cli_makes_them() {
         ("pdf", &pdf.body),
     ] {
         let reply = server
-            .request(
-                Method::GET,
-                &format!("/v1/jobs/{id}/{result}"),
-                &gzip,
-                Vec::new(),
-            )
+            .get_with(&format!("/v1/jobs/{id}/{result}"), &gzip)
             .await;
         assert_eq!(reply.header("content-encoding"), Some("gzip"), "{result}");
         let mut unpacked = Vec::new();
@@ -772,12 +767,7 @@ async fn png_flattened_svg_and_pdf_are_served_as_the_cli_makes_them() {
     }
     for result in ["png?width=40", "events"] {
         let reply = server
-            .request(
-                Method::GET,
-                &format!("/v1/jobs/{id}/{result}"),
-                &gzip,
-                Vec::new(),
-            )
+            .get_with(&format!("/v1/jobs/{id}/{result}"), &gzip)
             .await;
         assert_eq!(reply.status, StatusCode::OK, "{result}");
         assert_eq!(reply.header("content-encoding"), None, "{result}");

@@ -176,7 +176,12 @@ impl Server {
     }
 
     pub async fn get(&self, path: &str) -> Reply {
-        self.request(Method::GET, path, &[], Vec::new()).await
+        self.get_with(path, &[]).await
+    }
+
+    /// A GET with these request headers.
+    pub async fn get_with(&self, path: &str, headers: &[(&str, &str)]) -> Reply {
+        self.request(Method::GET, path, headers, Vec::new()).await
     }
 
     /// `POST /v1/jobs/{id}/cancel`.
