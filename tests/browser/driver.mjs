@@ -141,21 +141,45 @@ class Page {
   }
 
   /**
-   * The next file the browser saves into the downloads directory: resolves once it is there and
-   * no download is still in progress. Only "download" is supported.
+   * The next file the browser saves into the downloads directory: resolves once it is there, no
+   * download is still in progress and the directory (names and sizes) has not changed for
+   * `SETTLE_MS`. Firefox may first write a download under a temporary name and rename it when
+   * done (seen in CI: `P-T8Y7AL.json` gone when read), so a new name alone is not a finished file.
+   * Only "download" is supported.
    */
   async waitForEvent(event, { timeout = ACTION_TIMEOUT_MS } = {}) {
     if (event !== "download") throw new Error(`waitForEvent(${event}) is not supported`);
+    const SETTLE_MS = 500;
     const dir = this.session.downloads;
     const before = new Set(fs.readdirSync(dir));
     const partial = (name) => /\.(part|crdownload)$/.test(name);
+    const listing = () =>
+      fs
+        .readdirSync(dir)
+        .map((name) => {
+          try {
+            return `${name}\t${fs.statSync(path.join(dir, name)).size}`;
+          } catch {
+            return `${name}\t?`; // renamed between readdir and stat: not settled
+          }
+        })
+        .sort()
+        .join("\n");
     const deadline = Date.now() + timeout;
+    let last = null;
+    let since = Date.now();
     while (Date.now() < deadline) {
-      const names = fs.readdirSync(dir);
-      const fresh = names.filter((name) => !before.has(name) && !partial(name));
-      if (fresh.length > 0 && !names.some(partial)) {
-        const file = path.join(dir, fresh[0]);
-        return { path: async () => file, suggestedFilename: () => fresh[0] };
+      const now = listing();
+      if (now !== last) {
+        last = now;
+        since = Date.now();
+      } else if (Date.now() - since >= SETTLE_MS) {
+        const names = fs.readdirSync(dir);
+        const fresh = names.filter((name) => !before.has(name) && !partial(name));
+        if (fresh.length > 0 && !names.some(partial) && !now.includes("\t?")) {
+          const file = path.join(dir, fresh[0]);
+          return { path: async () => file, suggestedFilename: () => fresh[0] };
+        }
       }
       await this.waitForTimeout(50);
     }
