@@ -13,6 +13,8 @@ fi
 # line's and the service's dependencies.
 python3 scripts/check-modules.py
 cargo check --quiet --lib --no-default-features
+# The Dockerfile and deploy/ files, which nothing here builds or applies: linted and validated.
+scripts/check-deploy.sh
 # Formatting and lints, where the toolchain has rustfmt and clippy (rustup's default profile does).
 if cargo fmt --version >/dev/null 2>&1; then
     cargo fmt --check
