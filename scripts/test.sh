@@ -28,6 +28,7 @@ fi
 scripts/setup-renderers.sh
 scripts/setup-clients.sh
 scripts/setup-s3.sh
+scripts/setup-postgres.sh
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
 
 # Every fuzz target for a short, bounded time (README, "Fuzzing"). COVEC_SKIP_FUZZ=1 skips it.

@@ -3,6 +3,8 @@
 
 #![allow(dead_code)] // each test binary uses a different part
 
+pub mod postgres;
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -75,7 +77,17 @@ impl Server {
 
     /// [`Server::start`] with these environment variables added.
     pub fn start_with_env(data_dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Self {
-        let log = std::fs::File::create(data_dir.with_extension("log")).unwrap();
+        Self::start_logged(data_dir, &data_dir.with_extension("log"), args, env)
+    }
+
+    /// [`Server::start_with_env`] logging to `log_path` (for servers sharing a data directory).
+    pub fn start_logged(
+        data_dir: &Path,
+        log_path: &Path,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
+        let log = std::fs::File::create(log_path).unwrap();
         let mut child = Command::new(env!("CARGO_BIN_EXE_covec"))
             .args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
             .arg(data_dir)
@@ -96,7 +108,7 @@ impl Server {
             .unwrap_or_else(|| {
                 panic!(
                     "unexpected first line {line:?}; log: {}",
-                    data_dir.with_extension("log").display()
+                    log_path.display()
                 )
             })
             .to_owned();
