@@ -226,3 +226,66 @@ async fn cancel_and_delete_work_from_any_replica() {
     let job = ended(&apis[0], &id, Duration::from_secs(60)).await;
     assert_eq!(job["status"], "succeeded", "{job}");
 }
+
+/// With no worker running, jobs submitted to one replica wait in the database's queue: every
+/// replica reports the queue's depth (`covec_jobs_queued`, what an autoscaler reads) and each
+/// job's place in it, and a replayed Idempotency-Key on the other replica finds the first job.
+#[tokio::test(flavor = "multi_thread")]
+async fn every_replica_sees_the_whole_queue() {
+    let postgres = Postgres::start();
+    let files = DataDir::new("pg-depth");
+    let apis = [
+        api(&files, "api-0", &postgres),
+        api(&files, "api-1", &postgres),
+    ];
+    let image = test_png(32);
+    let mut ids = Vec::new();
+    for seed in 0..3 {
+        ids.push(submit(&apis[0], &image, &quick_params(seed)).await);
+    }
+    let started = std::time::Instant::now();
+    loop {
+        let metrics = apis[1].get("/metrics").await.text();
+        if metrics.lines().any(|line| line == "covec_jobs_queued 3") {
+            break;
+        }
+        assert!(started.elapsed() < Duration::from_secs(5), "{metrics}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    for (position, id) in ids.iter().enumerate() {
+        let job = apis[1].get(&format!("/v1/jobs/{id}")).await.json();
+        assert_eq!(job["queue_position"], position, "{job}");
+    }
+    let params = quick_params(7);
+    let parts = [("image", image.as_slice()), ("params", params.as_bytes())];
+    let key = [("idempotency-key", "batch-7")];
+    let first = apis[0].submit(&parts, &key).await;
+    assert_eq!(first.status, StatusCode::CREATED, "{}", first.text());
+    let replayed = apis[1].submit(&parts, &key).await;
+    assert_eq!(replayed.header("idempotent-replayed"), Some("true"));
+    assert_eq!(replayed.json()["id"], first.json()["id"]);
+}
+
+/// A job whose worker vanishes on every attempt fails after the last one with
+/// `workers-lost`, instead of going round the queue for ever.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_job_is_failed_after_its_last_attempt() {
+    let postgres = Postgres::start();
+    let files = DataDir::new("pg-attempts");
+    let server = api(&files, "api", &postgres);
+    let id = submit(&server, &test_png(48), LONG_PARAMS).await;
+    for attempt in 1..=3 {
+        let doomed = worker(&files, &format!("worker-{attempt}"), &postgres);
+        server
+            .wait_for(&id, Duration::from_secs(30), |job| {
+                job["status"] == "running" && job["attempts"] == attempt
+            })
+            .await;
+        doomed.kill();
+    }
+    // No worker left: the API replica's follower takes back the expired lease.
+    let job = ended(&server, &id, Duration::from_secs(20)).await;
+    assert_eq!(job["status"], "failed", "{job}");
+    assert_eq!(job["error"]["code"], "workers-lost", "{job}");
+    assert_eq!(job["attempts"], 3, "{job}");
+}
