@@ -162,9 +162,10 @@ async fn a_job_whose_worker_is_killed_succeeds_on_another() {
     let files = DataDir::new("pg-kill");
     let server = api(&files, "api", &postgres);
     let doomed = worker(&files, "doomed", &postgres);
-    // Long enough to be caught running, short enough to finish on the second worker.
+    // Long enough to be caught running (about 4 s on an idle core; progress shows within
+    // 0.7 s), short enough to run again on the second worker.
     let params = r#"{"paths": 16, "max_size": 48, "seed": 3,
-        "iterations": {"structure": 150, "reconstruction": 150, "refine_rounds": 1, "refine": 150, "polish": 150}}"#;
+        "iterations": {"structure": 1500, "reconstruction": 1500, "refine_rounds": 1, "refine": 1500, "polish": 1500}}"#;
     let id = submit(&server, &test_png(48), params).await;
     server
         .wait_for(&id, Duration::from_secs(60), |job| {
