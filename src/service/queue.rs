@@ -28,10 +28,10 @@ use super::model::{CancelReason, JobRecord, Status, Webhook};
 use super::ops::Metrics;
 use super::runner::{JobEntry, Runner, Settled, job_pool, lock};
 use super::store::{
-    Canceled, Change, Inserted, MAX_ATTEMPTS, Postgres, Store, StoreError, digest, retry_transient,
+    Canceled, Change, Inserted, Postgres, Store, StoreError, digest, retry_transient,
 };
 use super::submit::InputLimits;
-use super::worker::{DEFAULT_LEASE, WorkerConfig, WorkerError, Workers};
+use super::worker::{DEFAULT_LEASE, REAP_EVERY, WorkerConfig, WorkerError, Workers, reap_expired};
 
 /// How often an API replica on the shared backend brings other processes' changes into its
 /// copy of the jobs (and reads the queue depth): what SSE and polls lag behind a worker.
@@ -48,7 +48,8 @@ pub const ORPHAN_AGE: Duration = Duration::from_secs(600);
 /// Queue and worker settings.
 #[derive(Clone, Debug)]
 pub struct QueueConfig {
-    /// Jobs run at once. Default 1 (one job uses every thread).
+    /// Jobs run at once. Default 1 (one job uses every thread). On the shared backend 0 is
+    /// allowed: an API replica that runs no job.
     pub workers: usize,
     /// Pipeline threads in total, shared out among the workers (at least one each).
     /// Default: the number of cores.
@@ -338,12 +339,9 @@ impl Queue {
                 Ok(next) => mark = next,
                 Err(error) => warn!("following the job database: {error}"),
             }
-            if last_reap.elapsed() >= Duration::from_secs(2) {
+            if last_reap.elapsed() >= REAP_EVERY {
                 last_reap = Instant::now();
-                let lost = ApiError::WorkersLost(MAX_ATTEMPTS as u32).problem();
-                if let Err(error) = postgres.reap(lost, self.config.retention) {
-                    warn!("taking back expired leases: {error}");
-                }
+                reap_expired(postgres, self.config.retention);
             }
         }
     }

@@ -27,8 +27,17 @@ pub const BEAT: Duration = Duration::from_millis(500);
 /// How long an idle slot waits before it looks for a queued job again.
 const IDLE_POLL: Duration = Duration::from_millis(250);
 
-/// How often a slot takes back jobs whose lease expired.
-const REAP_EVERY: Duration = Duration::from_secs(2);
+/// How often a slot (or an API replica's follower) takes back jobs whose lease expired.
+pub const REAP_EVERY: Duration = Duration::from_secs(2);
+
+/// Takes back the jobs whose lease expired ([`Postgres::reap`]): queued again, or failed with
+/// `workers-lost` after [`MAX_ATTEMPTS`]. Failures are logged: the next look tries again.
+pub fn reap_expired(postgres: &Postgres, retention: Duration) {
+    let lost = ApiError::WorkersLost(MAX_ATTEMPTS as u32).problem();
+    if let Err(error) = postgres.reap(lost, retention) {
+        warn!("taking back expired leases: {error}");
+    }
+}
 
 /// Job slots and how long a lease lasts.
 #[derive(Clone, Debug)]
@@ -156,10 +165,7 @@ impl Workers {
         while !self.draining.load(Ordering::SeqCst) {
             if last_reap.is_none_or(|at| at.elapsed() >= REAP_EVERY) {
                 last_reap = Some(Instant::now());
-                let lost = ApiError::WorkersLost(MAX_ATTEMPTS as u32).problem();
-                if let Err(error) = self.postgres().reap(lost, self.runner.retention) {
-                    warn!("taking back expired leases: {error}");
-                }
+                reap_expired(self.postgres(), self.runner.retention);
             }
             match self.postgres().claim(self.lease) {
                 Ok(Some(claim)) => self.run_claim(claim, pool),
