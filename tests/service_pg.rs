@@ -290,3 +290,27 @@ async fn a_job_is_failed_after_its_last_attempt() {
     assert_eq!(job["error"]["code"], "workers-lost", "{job}");
     assert_eq!(job["attempts"], 3, "{job}");
 }
+
+/// PostgreSQL restarted while a job runs: the worker and the API replica reconnect, the job
+/// still succeeds, and the replica takes new jobs.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_database_restart_loses_no_job() {
+    let mut postgres = Postgres::start();
+    let files = DataDir::new("pg-restart");
+    let server = api(&files, "api", &postgres);
+    let _worker = worker(&files, "worker", &postgres);
+    let params = r#"{"paths": 16, "max_size": 48, "seed": 5,
+        "iterations": {"structure": 1500, "reconstruction": 1500, "refine_rounds": 1, "refine": 1500, "polish": 1500}}"#;
+    let id = submit(&server, &test_png(48), params).await;
+    server
+        .wait_for(&id, Duration::from_secs(60), |job| {
+            job["status"] == "running"
+        })
+        .await;
+    postgres.restart();
+    let job = ended(&server, &id, Duration::from_secs(120)).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let id = submit(&server, &test_png(32), &quick_params(2)).await;
+    let job = ended(&server, &id, Duration::from_secs(60)).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+}

@@ -14,7 +14,7 @@ pub struct Postgres {
     /// `postgres://…` for `--database-url`.
     pub url: String,
     port: u16,
-    _dir: DataDir,
+    dir: DataDir,
 }
 
 /// The directory holding `initdb` and `postgres`: Debian's newest version, else `PATH`.
@@ -78,27 +78,39 @@ impl Postgres {
             .local_addr()
             .unwrap()
             .port();
-        let log = std::fs::File::create(dir.0.join("postgres.log")).unwrap();
-        let child = command("postgres")
-            .arg("-D")
-            .arg(&data)
-            .args(["-p", &port.to_string(), "-h", "127.0.0.1", "-k"])
-            .arg(&dir.0)
-            // A test database: speed over durability.
-            .args(["-c", "fsync=off", "-c", "synchronous_commit=off"])
-            .args(["-c", "full_page_writes=off"])
-            .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .expect("postgres");
         let postgres = Self {
-            child,
+            child: spawn_server(&dir.0, port),
             url: format!("postgres://covec@127.0.0.1:{port}/postgres"),
             port,
-            _dir: dir,
+            dir,
         };
         postgres.wait_ready();
         postgres
+    }
+
+    /// Stops the server (fast shutdown: connections are cut) and starts it again on the same
+    /// port and data; returns once it accepts connections.
+    pub fn restart(&mut self) {
+        self.stop();
+        self.child = spawn_server(&self.dir.0, self.port);
+        self.wait_ready();
+    }
+
+    fn stop(&mut self) {
+        // SIGINT: PostgreSQL's fast shutdown.
+        // SAFETY: a signal to our own child.
+        unsafe {
+            libc::kill(self.child.id() as i32, libc::SIGINT);
+        }
+        let started = Instant::now();
+        while started.elapsed() < Duration::from_secs(10) {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
     }
 
     fn wait_ready(&self) {
@@ -136,21 +148,29 @@ impl Postgres {
 
 impl Drop for Postgres {
     fn drop(&mut self) {
-        // SIGINT: PostgreSQL's fast shutdown.
-        // SAFETY: a signal to our own child.
-        unsafe {
-            libc::kill(self.child.id() as i32, libc::SIGINT);
-        }
-        let started = Instant::now();
-        while started.elapsed() < Duration::from_secs(10) {
-            if let Ok(Some(_)) = self.child.try_wait() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        self.stop();
     }
+}
+
+/// `postgres` on `port` for the cluster in `dir/data`, logging to `dir/postgres.log`.
+fn spawn_server(dir: &Path, port: u16) -> Child {
+    let log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(dir.join("postgres.log"))
+        .unwrap();
+    command("postgres")
+        .arg("-D")
+        .arg(dir.join("data"))
+        .args(["-p", &port.to_string(), "-h", "127.0.0.1", "-k"])
+        .arg(dir)
+        // A test database: speed over durability.
+        .args(["-c", "fsync=off", "-c", "synchronous_commit=off"])
+        .args(["-c", "full_page_writes=off"])
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .expect("postgres")
 }
 
 /// A `covec worker` process, killed on drop.
