@@ -314,3 +314,48 @@ async fn a_database_restart_loses_no_job() {
     let job = ended(&server, &id, Duration::from_secs(60)).await;
     assert_eq!(job["status"], "succeeded", "{job}");
 }
+
+/// An API replica killed with SIGKILL while a client streams a job's events from it: the
+/// client reconnects to the other replica and sees the job complete there.
+#[tokio::test(flavor = "multi_thread")]
+async fn sse_clients_of_a_killed_replica_see_completion_on_the_other() {
+    use http_body_util::{BodyExt, Full};
+    use hyper::body::Bytes;
+    use hyper_util::client::legacy::Client;
+    use hyper_util::rt::TokioExecutor;
+
+    let postgres = Postgres::start();
+    let files = DataDir::new("pg-sse");
+    let apis = [
+        api(&files, "api-0", &postgres),
+        api(&files, "api-1", &postgres),
+    ];
+    let _worker = worker(&files, "worker", &postgres);
+    let params = r#"{"paths": 16, "max_size": 48, "seed": 9,
+        "iterations": {"structure": 1500, "reconstruction": 1500, "refine_rounds": 1, "refine": 1500, "polish": 1500}}"#;
+    let id = submit(&apis[0], &test_png(48), params).await;
+    let path = format!("/v1/jobs/{id}/events");
+    let client = Client::builder(TokioExecutor::new()).build_http::<Full<Bytes>>();
+    let request = hyper::Request::builder()
+        .uri(format!("{}{path}", apis[0].base))
+        .body(Full::new(Bytes::new()))
+        .unwrap();
+    let mut stream = client.request(request).await.unwrap().into_body();
+    // The first event (the job queued or running), then the replica dies mid-stream.
+    let first = stream.frame().await.unwrap().unwrap();
+    assert!(String::from_utf8_lossy(first.data_ref().unwrap()).contains("event: progress"));
+    apis[0].sigkill();
+    let mut seen = String::new();
+    while let Ok(Some(Ok(frame))) =
+        tokio::time::timeout(Duration::from_secs(10), stream.frame()).await
+    {
+        if let Some(data) = frame.data_ref() {
+            seen.push_str(&String::from_utf8_lossy(data));
+        }
+    }
+    assert!(!seen.contains("event: completed"), "{seen}");
+    let events = apis[1].events(&path, Duration::from_secs(120)).await;
+    let (name, data) = events.last().unwrap();
+    assert_eq!(name, "completed", "{events:?}");
+    assert!(data.contains("\"succeeded\""), "{data}");
+}
