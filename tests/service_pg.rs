@@ -21,6 +21,15 @@ fn quick_params(seed: u32) -> String {
     )
 }
 
+/// Parameters of a job long enough to be caught running (about 4 s on an idle core; its
+/// progress shows within 0.7 s) and short enough to run again, with this seed.
+fn seconds_params(seed: u32) -> String {
+    format!(
+        r#"{{"paths": 16, "max_size": 48, "seed": {seed},
+           "iterations": {{"structure": 1500, "reconstruction": 1500, "refine_rounds": 1, "refine": 1500, "polish": 1500}}}}"#
+    )
+}
+
 /// Room for [`LONG_PARAMS`].
 const MAX_ITERATIONS: &str = "1000000";
 
@@ -162,11 +171,8 @@ async fn a_job_whose_worker_is_killed_succeeds_on_another() {
     let files = DataDir::new("pg-kill");
     let server = api(&files, "api", &postgres);
     let doomed = worker(&files, "doomed", &postgres);
-    // Long enough to be caught running (about 4 s on an idle core; progress shows within
-    // 0.7 s), short enough to run again on the second worker.
-    let params = r#"{"paths": 16, "max_size": 48, "seed": 3,
-        "iterations": {"structure": 1500, "reconstruction": 1500, "refine_rounds": 1, "refine": 1500, "polish": 1500}}"#;
-    let id = submit(&server, &test_png(48), params).await;
+    let params = seconds_params(3);
+    let id = submit(&server, &test_png(48), &params).await;
     server
         .wait_for(&id, Duration::from_secs(60), |job| {
             job["status"] == "running" && !job["progress"].is_null()
@@ -299,9 +305,8 @@ async fn a_database_restart_loses_no_job() {
     let files = DataDir::new("pg-restart");
     let server = api(&files, "api", &postgres);
     let _worker = worker(&files, "worker", &postgres);
-    let params = r#"{"paths": 16, "max_size": 48, "seed": 5,
-        "iterations": {"structure": 1500, "reconstruction": 1500, "refine_rounds": 1, "refine": 1500, "polish": 1500}}"#;
-    let id = submit(&server, &test_png(48), params).await;
+    let params = seconds_params(5);
+    let id = submit(&server, &test_png(48), &params).await;
     server
         .wait_for(&id, Duration::from_secs(60), |job| {
             job["status"] == "running"
@@ -331,9 +336,8 @@ async fn sse_clients_of_a_killed_replica_see_completion_on_the_other() {
         api(&files, "api-1", &postgres),
     ];
     let _worker = worker(&files, "worker", &postgres);
-    let params = r#"{"paths": 16, "max_size": 48, "seed": 9,
-        "iterations": {"structure": 1500, "reconstruction": 1500, "refine_rounds": 1, "refine": 1500, "polish": 1500}}"#;
-    let id = submit(&apis[0], &test_png(48), params).await;
+    let params = seconds_params(9);
+    let id = submit(&apis[0], &test_png(48), &params).await;
     let path = format!("/v1/jobs/{id}/events");
     let client = Client::builder(TokioExecutor::new()).build_http::<Full<Bytes>>();
     let request = hyper::Request::builder()
