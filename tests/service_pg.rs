@@ -101,7 +101,7 @@ fn finishes(log: &Path, id: &str) -> usize {
 #[tokio::test(flavor = "multi_thread")]
 async fn jobs_spread_over_replicas_and_workers_run_once_with_the_embedded_results() {
     let postgres = Postgres::start();
-    let files = DataDir::new("pg-files");
+    let files = DataDir::plain("pg-files");
     let apis = [
         api(&files, "api-0", &postgres),
         api(&files, "api-1", &postgres),
@@ -152,7 +152,7 @@ async fn jobs_spread_over_replicas_and_workers_run_once_with_the_embedded_result
         "0\n"
     );
 
-    let single = DataDir::new("pg-reference");
+    let single = DataDir::plain("pg-reference");
     let reference = Server::start(&single.0, &["--workers", "1", "--threads", "1"]);
     for ((image, params), expected) in inputs.iter().zip(&results) {
         let id = submit(&reference, image, params).await;
@@ -168,7 +168,7 @@ async fn jobs_spread_over_replicas_and_workers_run_once_with_the_embedded_result
 #[tokio::test(flavor = "multi_thread")]
 async fn a_job_whose_worker_is_killed_succeeds_on_another() {
     let postgres = Postgres::start();
-    let files = DataDir::new("pg-kill");
+    let files = DataDir::plain("pg-kill");
     let server = api(&files, "api", &postgres);
     let doomed = worker(&files, "doomed", &postgres);
     let params = seconds_params(3);
@@ -190,7 +190,7 @@ async fn a_job_whose_worker_is_killed_succeeds_on_another() {
 #[tokio::test(flavor = "multi_thread")]
 async fn cancel_and_delete_work_from_any_replica() {
     let postgres = Postgres::start();
-    let files = DataDir::new("pg-cancel");
+    let files = DataDir::plain("pg-cancel");
     let apis = [
         api(&files, "api-0", &postgres),
         api(&files, "api-1", &postgres),
@@ -240,7 +240,7 @@ async fn cancel_and_delete_work_from_any_replica() {
 #[tokio::test(flavor = "multi_thread")]
 async fn every_replica_sees_the_whole_queue() {
     let postgres = Postgres::start();
-    let files = DataDir::new("pg-depth");
+    let files = DataDir::plain("pg-depth");
     let apis = [
         api(&files, "api-0", &postgres),
         api(&files, "api-1", &postgres),
@@ -278,7 +278,7 @@ async fn every_replica_sees_the_whole_queue() {
 #[tokio::test(flavor = "multi_thread")]
 async fn a_job_is_failed_after_its_last_attempt() {
     let postgres = Postgres::start();
-    let files = DataDir::new("pg-attempts");
+    let files = DataDir::plain("pg-attempts");
     let server = api(&files, "api", &postgres);
     let id = submit(&server, &test_png(48), LONG_PARAMS).await;
     for attempt in 1..=3 {
@@ -302,7 +302,7 @@ async fn a_job_is_failed_after_its_last_attempt() {
 #[tokio::test(flavor = "multi_thread")]
 async fn a_database_restart_loses_no_job() {
     let mut postgres = Postgres::start();
-    let files = DataDir::new("pg-restart");
+    let files = DataDir::plain("pg-restart");
     let server = api(&files, "api", &postgres);
     let _worker = worker(&files, "worker", &postgres);
     let params = seconds_params(5);
@@ -330,7 +330,7 @@ async fn sse_clients_of_a_killed_replica_see_completion_on_the_other() {
     use hyper_util::rt::TokioExecutor;
 
     let postgres = Postgres::start();
-    let files = DataDir::new("pg-sse");
+    let files = DataDir::plain("pg-sse");
     let apis = [
         api(&files, "api-0", &postgres),
         api(&files, "api-1", &postgres),

@@ -58,7 +58,7 @@ fn chown_to_postgres(path: &Path) {
 
 impl Postgres {
     pub fn start() -> Self {
-        let dir = DataDir::new("postgres");
+        let dir = DataDir::plain("postgres");
         chown_to_postgres(&dir.0);
         let data = dir.0.join("data");
         let initdb = command("initdb")
