@@ -24,6 +24,8 @@ enum Command {
     Eval(cli::eval::Args),
     /// Run the HTTP vectorisation service (jobs API, progress, results; see api/openapi.yaml).
     Serve(cli::serve::ServeArgs),
+    /// Run queued jobs from the shared PostgreSQL backend (`--database-url`), with no HTTP API.
+    Worker(cli::serve::WorkerArgs),
 }
 
 fn main() -> ExitCode {
@@ -34,6 +36,7 @@ fn main() -> ExitCode {
         Command::Render(args) => cli::render::run(&args).map_err(|e| e.to_string()),
         Command::Eval(args) => cli::eval::run(&args).map_err(|e| e.to_string()),
         Command::Serve(args) => return cli::serve::run(args),
+        Command::Worker(args) => return cli::serve::work(args),
     };
     if let Err(error) = result {
         eprintln!("error: {error}");

@@ -1,4 +1,5 @@
-//! `covec serve`: run the HTTP vectorisation service.
+//! `covec serve`: run the HTTP vectorisation service; `covec worker`: run its jobs only, on
+//! the shared PostgreSQL backend. Both take the storage, job and input options ([`JobArgs`]).
 
 use std::io::IsTerminal;
 use std::net::SocketAddr;
@@ -10,13 +11,12 @@ use clap::Args;
 
 use covec::service::{self, Config, ConnectionLimits, InputLimits, QueueConfig, WebhookConfig};
 
-/// Every option also reads an environment variable (shown in `--help`); flags win.
+/// Storage, job slots and what one job may take: shared by `serve` and `worker`. Every option
+/// also reads an environment variable (shown in `--help`); flags win.
 #[derive(Args, Debug)]
-pub struct ServeArgs {
-    /// Address to listen on.
-    #[arg(long, env = "COVEC_ADDR", default_value_t = Config::default().addr)]
-    addr: SocketAddr,
-    /// Directory for the job database and results (created if missing).
+pub struct JobArgs {
+    /// Directory for the job database and results (created if missing); with --database-url
+    /// it holds the job files only, and only without --object-store.
     #[arg(long, env = "COVEC_DATA_DIR", default_value_os_t = Config::default().data_dir)]
     data_dir: PathBuf,
     /// Keep results and other job files in this S3-compatible bucket (`s3://bucket/prefix`)
@@ -24,18 +24,18 @@ pub struct ServeArgs {
     /// AWS_* variables (AWS_ENDPOINT and AWS_ALLOW_HTTP=true for a local server).
     #[arg(long, env = "COVEC_OBJECT_STORE")]
     object_store: Option<String>,
-    /// Jobs run at once; the pipeline threads are shared out among them.
+    /// Keep job records, the queue and idempotency keys in this PostgreSQL database
+    /// (`postgres://user:password@host:port/db`, no TLS), shared by API replicas and
+    /// `covec worker`s, instead of SQLite in the data directory.
+    #[arg(long, env = "COVEC_DATABASE_URL", hide_env_values = true)]
+    database_url: Option<String>,
+    /// Jobs run at once; the pipeline threads are shared out among them. With
+    /// --database-url, `covec serve --workers 0` runs no job (an API replica).
     #[arg(long, env = "COVEC_WORKERS", default_value_t = QueueConfig::default().workers)]
     workers: usize,
     /// Pipeline threads in total [default: number of cores].
     #[arg(long, env = "COVEC_THREADS")]
     threads: Option<usize>,
-    /// Most jobs waiting for a worker; more get 503 with Retry-After.
-    #[arg(long, env = "COVEC_MAX_QUEUED", default_value_t = QueueConfig::default().max_queued)]
-    max_queued: usize,
-    /// Largest request body, in bytes.
-    #[arg(long, env = "COVEC_MAX_BODY_BYTES", default_value_t = InputLimits::default().max_body_bytes)]
-    max_body_bytes: u64,
     /// Largest image (also albedo, masks, label map), in pixels.
     #[arg(long, env = "COVEC_MAX_PIXELS", default_value_t = InputLimits::default().max_pixels)]
     max_pixels: u64,
@@ -66,6 +66,56 @@ pub struct ServeArgs {
     /// How long results are kept after a job ends, in seconds.
     #[arg(long, env = "COVEC_RETENTION", default_value_t = QueueConfig::default().retention.as_secs())]
     retention: u64,
+    /// With --database-url: seconds a worker's claim on a job holds without a heartbeat; a job
+    /// whose worker vanished runs again elsewhere after this long.
+    #[arg(long, env = "COVEC_LEASE_SECONDS", default_value_t = QueueConfig::default().lease.as_secs())]
+    lease_seconds: u64,
+    /// Seconds running jobs may finish after SIGTERM before they are re-queued for the next start.
+    #[arg(long, env = "COVEC_SHUTDOWN_GRACE", default_value_t = Config::default().shutdown_grace.as_secs())]
+    shutdown_grace: u64,
+}
+
+impl JobArgs {
+    /// The settings these options give, over `config`.
+    fn apply(self, config: &mut Config) {
+        let defaults = QueueConfig::default();
+        config.data_dir = self.data_dir;
+        config.object_store = self.object_store;
+        config.database_url = self.database_url;
+        config.queue.workers = self.workers;
+        config.queue.threads = self.threads.unwrap_or(defaults.threads);
+        config.queue.job_time_limit = Duration::from_secs(self.job_time_limit);
+        config.queue.retention = Duration::from_secs(self.retention);
+        config.queue.lease = Duration::from_secs(self.lease_seconds);
+        config.limits = InputLimits {
+            max_body_bytes: config.limits.max_body_bytes,
+            max_pixels: self.max_pixels,
+            max_masks: self.max_masks,
+            max_paths: self.max_paths,
+            max_size: self.max_size,
+            max_iterations: self.max_iterations,
+            max_decoded_bytes: self.max_decoded_bytes,
+            decode_slots: self.decode_slots.max(1),
+            decode_wait: Duration::from_secs(self.decode_wait),
+        };
+        config.shutdown_grace = Duration::from_secs(self.shutdown_grace);
+    }
+}
+
+/// Every option also reads an environment variable (shown in `--help`); flags win.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Address to listen on.
+    #[arg(long, env = "COVEC_ADDR", default_value_t = Config::default().addr)]
+    addr: SocketAddr,
+    #[command(flatten)]
+    jobs: JobArgs,
+    /// Most jobs waiting for a worker; more get 503 with Retry-After.
+    #[arg(long, env = "COVEC_MAX_QUEUED", default_value_t = QueueConfig::default().max_queued)]
+    max_queued: usize,
+    /// Largest request body, in bytes.
+    #[arg(long, env = "COVEC_MAX_BODY_BYTES", default_value_t = InputLimits::default().max_body_bytes)]
+    max_body_bytes: u64,
     /// Accepted API keys, comma-separated; none means no authentication.
     #[arg(
         long,
@@ -88,9 +138,6 @@ pub struct ServeArgs {
     /// Keep it well below `ulimit -n`: jobs need files too.
     #[arg(long, env = "COVEC_MAX_CONNECTIONS", default_value_t = ConnectionLimits::default().max_connections)]
     max_connections: usize,
-    /// Seconds running jobs may finish after SIGTERM before they are re-queued for the next start.
-    #[arg(long, env = "COVEC_SHUTDOWN_GRACE", default_value_t = Config::default().shutdown_grace.as_secs())]
-    shutdown_grace: u64,
     /// Longest `Prefer: wait=N` honoured on a submission, in seconds; 0 ignores it.
     #[arg(long, env = "COVEC_MAX_WAIT", default_value_t = Config::default().max_wait.as_secs())]
     max_wait: u64,
@@ -114,28 +161,15 @@ pub struct ServeArgs {
 
 impl ServeArgs {
     fn config(self) -> Config {
-        let defaults = QueueConfig::default();
-        Config {
+        let mut config = Config {
             addr: self.addr,
-            data_dir: self.data_dir,
-            object_store: self.object_store,
             queue: QueueConfig {
-                workers: self.workers,
-                threads: self.threads.unwrap_or(defaults.threads),
                 max_queued: self.max_queued,
-                job_time_limit: Duration::from_secs(self.job_time_limit),
-                retention: Duration::from_secs(self.retention),
+                ..QueueConfig::default()
             },
             limits: InputLimits {
                 max_body_bytes: self.max_body_bytes,
-                max_pixels: self.max_pixels,
-                max_masks: self.max_masks,
-                max_paths: self.max_paths,
-                max_size: self.max_size,
-                max_iterations: self.max_iterations,
-                max_decoded_bytes: self.max_decoded_bytes,
-                decode_slots: self.decode_slots.max(1),
-                decode_wait: Duration::from_secs(self.decode_wait),
+                ..InputLimits::default()
             },
             connections: ConnectionLimits {
                 header_read_timeout: Duration::from_secs(self.header_read_timeout),
@@ -152,7 +186,6 @@ impl ServeArgs {
                 .into_iter()
                 .filter(|origin| !origin.is_empty())
                 .collect(),
-            shutdown_grace: Duration::from_secs(self.shutdown_grace),
             max_wait: Duration::from_secs(self.max_wait),
             webhooks: WebhookConfig {
                 secret: self.webhook_secret.filter(|secret| !secret.is_empty()),
@@ -166,11 +199,22 @@ impl ServeArgs {
                 first_retry: Duration::from_secs(self.webhook_first_retry),
                 ..WebhookConfig::default()
             },
-        }
+            ..Config::default()
+        };
+        self.jobs.apply(&mut config);
+        config
     }
 }
 
-pub fn run(args: ServeArgs) -> ExitCode {
+/// `covec worker`: runs queued jobs from the PostgreSQL backend, with no HTTP API.
+#[derive(Args, Debug)]
+pub struct WorkerArgs {
+    #[command(flatten)]
+    jobs: JobArgs,
+}
+
+/// Logs to stderr (`COVEC_LOG` filters) and a multi-threaded runtime, or the exit code.
+fn start(command: &str) -> Result<tokio::runtime::Runtime, ExitCode> {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("COVEC_LOG")
@@ -179,12 +223,32 @@ pub fn run(args: ServeArgs) -> ExitCode {
         .with_writer(std::io::stderr)
         .with_ansi(std::io::stderr().is_terminal())
         .init();
-    let runtime = match tokio::runtime::Runtime::new() {
+    tokio::runtime::Runtime::new().map_err(|error| {
+        eprintln!("covec {command}: cannot start the async runtime: {error}");
+        ExitCode::FAILURE
+    })
+}
+
+pub fn work(args: WorkerArgs) -> ExitCode {
+    let runtime = match start("worker") {
         Ok(runtime) => runtime,
+        Err(code) => return code,
+    };
+    let mut config = Config::default();
+    args.jobs.apply(&mut config);
+    match runtime.block_on(service::work(config)) {
+        Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
-            eprintln!("covec serve: cannot start the async runtime: {error}");
-            return ExitCode::FAILURE;
+            eprintln!("covec worker: {error}");
+            ExitCode::FAILURE
         }
+    }
+}
+
+pub fn run(args: ServeArgs) -> ExitCode {
+    let runtime = match start("serve") {
+        Ok(runtime) => runtime,
+        Err(code) => return code,
     };
     let result = runtime.block_on(service::serve(args.config(), |addr| {
         // The one line on stdout: scripts (and the integration tests) read the bound address.

@@ -96,6 +96,10 @@ pub enum ApiError {
     #[error("the pipeline failed unexpectedly: {0}")]
     PipelineCrashed(String),
     #[error(
+        "the job's worker stopped without finishing it {0} times (each time its lease expired); it is not tried again"
+    )]
+    WorkersLost(u32),
+    #[error(
         "the stored result `{0}` is damaged (it does not match the digest recorded when it was written)"
     )]
     CorruptResult(String),
@@ -128,7 +132,7 @@ impl ApiError {
             NotReady(..) => StatusCode::CONFLICT,
             DataRemoved(_) => StatusCode::GONE,
             TimeLimit(_) => StatusCode::REQUEST_TIMEOUT,
-            PipelineCrashed(_) | CorruptResult(_) | Internal(_) => {
+            PipelineCrashed(_) | WorkersLost(_) | CorruptResult(_) | Internal(_) => {
                 StatusCode::INTERNAL_SERVER_ERROR
             }
         }
@@ -165,6 +169,7 @@ impl ApiError {
             DataRemoved(_) => "data-removed",
             TimeLimit(_) => "time-limit",
             PipelineCrashed(_) => "pipeline-crashed",
+            WorkersLost(_) => "workers-lost",
             CorruptResult(_) => "result-corrupt",
             Internal(_) => "internal",
         }

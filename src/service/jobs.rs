@@ -18,7 +18,8 @@ use super::error::ApiError;
 use super::model::{
     Idempotency, InputManifest, JobRecord, JobView, Status, is_job_id, new_job_id, now_ms,
 };
-use super::queue::{Admission, JobEntry};
+use super::queue::Admission;
+use super::runner::JobEntry;
 use super::submit::{self, decode_inputs};
 use super::{AppState, Endpoint, endpoint};
 
@@ -167,6 +168,7 @@ async fn create(
         data_removed: false,
         checksums: Default::default(),
         webhook,
+        attempts: 0,
     };
     let queue = state.queue.clone();
     let admission = tokio::task::spawn_blocking(move || queue.admit(record, inputs))

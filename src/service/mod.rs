@@ -19,9 +19,11 @@ mod model;
 mod ops;
 mod queue;
 mod results;
+mod runner;
 mod store;
 mod submit;
 mod webhooks;
+mod worker;
 
 pub use conn::ConnectionLimits;
 pub use queue::QueueConfig;
@@ -63,6 +65,10 @@ pub struct Config {
     /// Artefacts in this S3-compatible bucket (`s3://bucket/prefix`, credentials, region and
     /// endpoint from the usual `AWS_*` variables) instead of the data directory. Default none.
     pub object_store: Option<String>,
+    /// Job records, the queue and idempotency keys in this PostgreSQL database
+    /// (`postgres://…`), shared with other replicas and `covec worker`s, instead of SQLite in
+    /// the data directory. Default none.
+    pub database_url: Option<String>,
     /// Workers, queue length, time limit, retention.
     pub queue: QueueConfig,
     /// What one job may send and ask for.
@@ -88,6 +94,7 @@ impl Default for Config {
             addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
             data_dir: PathBuf::from("covec-data"),
             object_store: None,
+            database_url: None,
             queue: QueueConfig::default(),
             limits: InputLimits::default(),
             connections: ConnectionLimits::default(),
@@ -141,6 +148,9 @@ pub enum ServeError {
     /// The webhook settings.
     #[error(transparent)]
     Webhooks(#[from] WebhookConfigError),
+    /// Starting `covec worker`'s job slots.
+    #[error(transparent)]
+    Workers(#[from] worker::WorkerError),
 }
 
 impl AppState {
@@ -154,6 +164,7 @@ impl AppState {
         let store = Arc::new(Store::open(
             &config.data_dir,
             config.object_store.as_deref(),
+            config.database_url.as_deref(),
         )?);
         let metrics = Arc::new(Metrics::default());
         let queue = Queue::start(
@@ -341,6 +352,50 @@ pub async fn serve(
     let drain = tokio::task::spawn_blocking(move || queue.drain(grace));
     conn::close(connections, grace).await;
     drain.await.map_err(std::io::Error::other)?;
+    tracing::info!("stopped");
+    Ok(())
+}
+
+/// Runs `covec worker`: job slots on the shared backend ([`worker::Workers`]), without an
+/// HTTP API, until SIGINT/SIGTERM; then running jobs finish for `shutdown_grace` or go back to
+/// the queue. Uses the data directory or object store, the database, the queue's workers,
+/// threads, time limit, retention and lease, and the input limits of `config`.
+pub async fn work(config: Config) -> Result<(), ServeError> {
+    let Some(database_url) = config.database_url.as_deref() else {
+        return Err(ServeError::Workers(worker::WorkerError::NotShared));
+    };
+    let store = Arc::new(Store::open(
+        &config.data_dir,
+        config.object_store.as_deref(),
+        Some(database_url),
+    )?);
+    let runner = Arc::new(runner::Runner {
+        decode_slots: Arc::new(tokio::sync::Semaphore::new(
+            config.limits.decode_slots.max(1),
+        )),
+        store,
+        limits: config.limits.clone(),
+        runtime: tokio::runtime::Handle::current(),
+        job_time_limit: config.queue.job_time_limit,
+        retention: config.queue.retention,
+        metrics: Arc::new(Metrics::default()),
+    });
+    let slots = config.queue.workers.max(1);
+    let workers = worker::Workers::start(
+        runner,
+        &worker::WorkerConfig {
+            slots,
+            threads: config.queue.threads,
+            lease: config.queue.lease,
+        },
+    )?;
+    tracing::info!(slots, "worker started");
+    stop_signal().await;
+    tracing::info!("shutting down: no new jobs");
+    let grace = config.shutdown_grace;
+    tokio::task::spawn_blocking(move || workers.drain(grace))
+        .await
+        .map_err(std::io::Error::other)?;
     tracing::info!("stopped");
     Ok(())
 }

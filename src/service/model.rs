@@ -169,6 +169,37 @@ pub struct JobRecord {
     /// Where to announce the job's events, and the deliveries so far.
     #[serde(default)]
     pub webhook: Option<Webhook>,
+    /// Runs started by PostgreSQL workers (a run whose worker vanished counts; one stopped by
+    /// shutdown does not). Always 0 on the embedded backend.
+    #[serde(default)]
+    pub attempts: u32,
+}
+
+impl JobRecord {
+    /// Puts the job back in the queue for a re-run: what the last run produced is forgotten.
+    pub fn requeue(&mut self) {
+        self.status = Status::Queued;
+        self.started_at = None;
+        self.progress = None;
+        self.cancel_requested = false;
+        self.previews.clear();
+    }
+
+    /// Marks the job ended (`status` terminal): when, until when its results are kept, why.
+    pub fn end(
+        &mut self,
+        status: Status,
+        error: Option<Problem>,
+        reason: Option<CancelReason>,
+        retention: Duration,
+    ) {
+        let now = now_ms();
+        self.status = status;
+        self.completed_at = Some(now);
+        self.expires_at = Some(now + retention.as_millis() as u64);
+        self.error = error;
+        self.cancel_reason = reason;
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -299,6 +330,9 @@ pub struct JobView {
     pub previews: Vec<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub webhook: Option<WebhookView>,
+    /// Runs started by PostgreSQL workers; absent on the embedded backend.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub attempts: u32,
     pub urls: Urls,
 }
 
@@ -403,6 +437,7 @@ impl JobView {
             data_removed: record.data_removed,
             previews: record.previews.clone(),
             webhook: record.webhook.as_ref().map(WebhookView::from),
+            attempts: record.attempts,
             urls: Urls {
                 events: format!("{base}/events"),
                 cancel: format!("{base}/cancel"),
@@ -412,6 +447,10 @@ impl JobView {
             },
         }
     }
+}
+
+fn is_zero(count: &u32) -> bool {
+    *count == 0
 }
 
 #[cfg(test)]

@@ -1,31 +1,45 @@
 //! The job queue and its workers.
 //!
 //! Live job state is held in memory (one `watch` channel per job, so polls and SSE streams read
-//! it without touching the database) and written through to the [`Store`] on every status
-//! change. `workers` runner threads take queued jobs in order; each runs its job's pipeline
+//! it without touching the database). On the embedded backend it is written through to the
+//! [`Store`] on every status change. On the shared backend (PostgreSQL) the database is the
+//! truth and the memory a copy: the queue, leases and idempotency keys are rows, jobs run in
+//! [`Workers`] (here or in `covec worker` processes), and a follower thread brings every
+//! change made anywhere into the copy every [`FOLLOW_EVERY`], so polls, listings and SSE on
+//! any replica see jobs running on any worker.
+//!
+//! Embedded: `workers` runner threads take queued jobs in order; each runs its job's pipeline
 //! inside its own rayon pool (`threads / workers` threads), so the async runtime never runs
 //! pipeline work. One pool per job slot rather than one shared pool: in a shared pool a thread
 //! waiting inside one job's parallel loop may pick up another whole job (rayon work-stealing),
 //! stalling the first job, and its cancellation, until the second ends.
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
-use std::panic::AssertUnwindSafe;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 
 use axum::body::Bytes;
-use tokio::sync::watch;
 use tracing::{info, info_span, warn};
 
 use super::error::ApiError;
-use super::model::{CancelReason, JobRecord, ProgressView, Status, now_ms};
+use super::model::{CancelReason, JobRecord, Status, Webhook};
 use super::ops::Metrics;
-use super::store::{Store, StoreError, digest, retry_transient};
-use super::submit::{InputLimits, decode_inputs, input_error};
-use crate::pipeline::{self, Observer, Progress};
-use crate::render::Image;
+use super::runner::{JobEntry, Runner, Settled, job_pool, lock};
+use super::store::{
+    Canceled, Change, Inserted, Postgres, Store, StoreError, digest, retry_transient,
+};
+use super::submit::InputLimits;
+use super::worker::{DEFAULT_LEASE, REAP_EVERY, WorkerConfig, WorkerError, Workers, reap_expired};
+
+/// How often an API replica on the shared backend brings other processes' changes into its
+/// copy of the jobs (and reads the queue depth): what SSE and polls lag behind a worker.
+pub const FOLLOW_EVERY: Duration = Duration::from_millis(200);
+
+/// How long a deleted job's row stays on the shared backend (so workers and replicas see the
+/// delete) before it is purged.
+const TOMBSTONE_AGE: Duration = Duration::from_secs(3600);
 
 /// Age after which a job directory without a job is swept while the server runs: far longer
 /// than a submission takes between writing its files and its record.
@@ -34,7 +48,8 @@ pub const ORPHAN_AGE: Duration = Duration::from_secs(600);
 /// Queue and worker settings.
 #[derive(Clone, Debug)]
 pub struct QueueConfig {
-    /// Jobs run at once. Default 1 (one job uses every thread).
+    /// Jobs run at once. Default 1 (one job uses every thread). On the shared backend 0 is
+    /// allowed: an API replica that runs no job.
     pub workers: usize,
     /// Pipeline threads in total, shared out among the workers (at least one each).
     /// Default: the number of cores.
@@ -45,6 +60,8 @@ pub struct QueueConfig {
     pub job_time_limit: Duration,
     /// How long results are kept after a job ends. Default 24 h.
     pub retention: Duration,
+    /// Shared backend: how long a worker's claim holds without a heartbeat. Default 30 s.
+    pub lease: Duration,
 }
 
 impl Default for QueueConfig {
@@ -55,44 +72,8 @@ impl Default for QueueConfig {
             max_queued: 64,
             job_time_limit: Duration::from_secs(600),
             retention: Duration::from_secs(24 * 3600),
+            lease: DEFAULT_LEASE,
         }
-    }
-}
-
-/// One job's live state.
-pub struct JobEntry {
-    pub id: String,
-    pub owner: Option<String>,
-    /// The current record; every change is broadcast to `/events` subscribers.
-    pub record: watch::Sender<JobRecord>,
-    cancel: AtomicBool,
-    cancel_reason: Mutex<Option<CancelReason>>,
-    deleted: AtomicBool,
-}
-
-impl JobEntry {
-    fn new(record: JobRecord) -> Arc<Self> {
-        Arc::new(Self {
-            id: record.id.clone(),
-            owner: record.owner.clone(),
-            record: watch::Sender::new(record),
-            cancel: AtomicBool::new(false),
-            cancel_reason: Mutex::new(None),
-            deleted: AtomicBool::new(false),
-        })
-    }
-
-    pub fn snapshot(&self) -> JobRecord {
-        self.record.borrow().clone()
-    }
-
-    /// Asks a running pipeline to stop; the first reason wins.
-    fn request_cancel(&self, reason: CancelReason) {
-        let mut current = lock(&self.cancel_reason);
-        current.get_or_insert(reason);
-        self.cancel.store(true, Ordering::Relaxed);
-        self.record
-            .send_modify(|record| record.cancel_requested = true);
     }
 }
 
@@ -108,19 +89,62 @@ struct State {
 
 pub struct Queue {
     config: QueueConfig,
-    limits: InputLimits,
-    store: Arc<Store>,
+    /// Runs jobs; its decode slots ([`InputLimits::decode_slots`]) are shared by the requests
+    /// that decode a submission and the runners that decode a job's stored inputs: both hold
+    /// a full-size decode in memory, so both count against one bound.
+    runner: Arc<Runner>,
     metrics: Arc<Metrics>,
-    runtime: tokio::runtime::Handle,
-    /// [`InputLimits::decode_slots`], shared by the requests that decode a submission and the
-    /// runners that decode a job's stored inputs: both hold a full-size decode in memory, so
-    /// both count against one bound.
-    decode_slots: Arc<tokio::sync::Semaphore>,
     state: Mutex<State>,
     /// Signalled when a job is queued, a job ends, or draining starts.
     changed: Condvar,
     runners_alive: AtomicUsize,
+    /// Embedded runners, and the shared backend's follower thread.
     runners: Mutex<Vec<JoinHandle<()>>>,
+    /// Shared backend: this process's job slots (if any), and the (queued, running) counts
+    /// the follower last read from the database.
+    workers: Option<Arc<Workers>>,
+    shared_depth: Mutex<(usize, usize)>,
+}
+
+impl State {
+    /// Adds a job to those known (unless it is known already: then that entry).
+    fn remember(&mut self, entry: Arc<JobEntry>) -> Arc<JobEntry> {
+        if let Some(known) = self.jobs.get(&entry.id) {
+            return Arc::clone(known);
+        }
+        if let Some(idempotency) = &entry.record.borrow().idempotency {
+            self.idempotency.insert(
+                (entry.owner.clone(), idempotency.key.clone()),
+                entry.id.clone(),
+            );
+        }
+        self.jobs.insert(entry.id.clone(), Arc::clone(&entry));
+        entry
+    }
+
+    /// Drops a deleted job from those known.
+    fn forget(&mut self, id: &str) {
+        self.pending.retain(|queued| queued != id);
+        let Some(entry) = self.jobs.remove(id) else {
+            return;
+        };
+        entry.deleted.store(true, Ordering::SeqCst);
+        if let Some(idempotency) = &entry.record.borrow().idempotency {
+            self.idempotency
+                .remove(&(entry.owner.clone(), idempotency.key.clone()));
+        }
+    }
+}
+
+/// Webhook delivery attempts made so far.
+fn deliveries_made(webhook: &Option<Webhook>) -> usize {
+    webhook.as_ref().map_or(0, |webhook| {
+        webhook
+            .deliveries
+            .iter()
+            .map(|delivery| delivery.attempts.len())
+            .sum()
+    })
 }
 
 /// A page of a listing: each job with its queue position while queued.
@@ -141,12 +165,8 @@ pub enum QueueError {
     Pool(#[from] rayon::ThreadPoolBuildError),
     #[error("worker thread: {0}")]
     Thread(#[from] std::io::Error),
-}
-
-fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
-    mutex
-        .lock()
-        .unwrap_or_else(|poisoned| poisoned.into_inner())
+    #[error(transparent)]
+    Workers(#[from] WorkerError),
 }
 
 impl Queue {
@@ -158,8 +178,13 @@ impl Queue {
         store: Arc<Store>,
         metrics: Arc<Metrics>,
     ) -> Result<Arc<Self>, QueueError> {
-        let workers = config.workers.max(1);
-        let threads_per_job = (config.threads / workers).max(1);
+        let shared = store.shared().is_some();
+        // The shared backend may run no job here (`--workers 0`: an API replica).
+        let workers = if shared {
+            config.workers
+        } else {
+            config.workers.max(1)
+        };
         let mut state = State {
             jobs: BTreeMap::new(),
             pending: VecDeque::new(),
@@ -167,52 +192,71 @@ impl Queue {
             running: 0,
             draining: false,
         };
-        let decode_slots = Arc::new(tokio::sync::Semaphore::new(limits.decode_slots.max(1)));
-        let recovered = store.recover()?;
-        metrics.set_quarantined(recovered.quarantined.len());
-        for mut record in recovered.records {
-            if !record.status.is_terminal() {
-                info!(job_id = %record.id, "re-queued after restart");
-                record.status = Status::Queued;
-                record.started_at = None;
-                record.progress = None;
-                record.cancel_requested = false;
-                record.previews.clear();
-                store.remove_outputs(&record.id)?;
-                store.save(&record)?;
-                state.pending.push_back(record.id.clone());
+        if !shared {
+            let recovered = store.recover()?;
+            metrics.set_quarantined(recovered.quarantined.len());
+            for mut record in recovered.records {
+                if !record.status.is_terminal() {
+                    info!(job_id = %record.id, "re-queued after restart");
+                    record.requeue();
+                    store.remove_outputs(&record.id)?;
+                    store.save(&record)?;
+                    state.pending.push_back(record.id.clone());
+                }
+                state.remember(JobEntry::new(record));
             }
-            if let Some(idempotency) = &record.idempotency {
-                state.idempotency.insert(
-                    (record.owner.clone(), idempotency.key.clone()),
-                    record.id.clone(),
-                );
-            }
-            state.jobs.insert(record.id.clone(), JobEntry::new(record));
         }
+        let runner = Arc::new(Runner {
+            decode_slots: Arc::new(tokio::sync::Semaphore::new(limits.decode_slots.max(1))),
+            store,
+            limits,
+            runtime: tokio::runtime::Handle::current(),
+            job_time_limit: config.job_time_limit,
+            retention: config.retention,
+            metrics: Arc::clone(&metrics),
+        });
+        let job_slots = if shared && workers > 0 {
+            Some(Workers::start(
+                Arc::clone(&runner),
+                &WorkerConfig {
+                    slots: workers,
+                    threads: config.threads,
+                    lease: config.lease,
+                },
+            )?)
+        } else {
+            None
+        };
         let queue = Arc::new(Self {
             config: QueueConfig { workers, ..config },
-            limits,
-            store,
+            runner,
             metrics,
-            runtime: tokio::runtime::Handle::current(),
-            decode_slots,
             state: Mutex::new(state),
             changed: Condvar::new(),
             runners_alive: AtomicUsize::new(0),
             runners: Mutex::new(Vec::new()),
+            workers: job_slots,
+            shared_depth: Mutex::new((0, 0)),
         });
+        if let Some(postgres) = queue.shared() {
+            let mark = queue.follow(postgres, None)?;
+            let follower = Arc::clone(&queue);
+            let handle = std::thread::Builder::new()
+                .name("covec-follower".into())
+                .spawn(move || follower.follow_changes(mark))?;
+            lock(&queue.runners).push(handle);
+            // Other replicas may be admitting jobs: only old directories are orphans.
+            queue.sweep_orphans(ORPHAN_AGE);
+            return Ok(queue);
+        }
         // Nothing is being admitted yet: every directory without a record is an orphan.
         let swept = queue.sweep_orphans(Duration::ZERO);
         if swept > 0 {
             info!(swept, "orphaned job directories removed at start");
         }
+        let threads_per_job = (queue.config.threads / workers).max(1);
         for index in 0..workers {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads_per_job)
-                .thread_name(move |thread| format!("covec-pipeline-{index}-{thread}"))
-                .start_handler(|_| lower_thread_priority())
-                .build()?;
+            let pool = job_pool(index, threads_per_job)?;
             let runner = Arc::clone(&queue);
             queue.runners_alive.fetch_add(1, Ordering::SeqCst);
             let handle = std::thread::Builder::new()
@@ -226,38 +270,135 @@ impl Queue {
         Ok(queue)
     }
 
+    /// The PostgreSQL records, on the shared backend.
+    fn shared(&self) -> Option<&Postgres> {
+        self.runner.store.shared()
+    }
+
+    /// Whether records, queue and leases are in PostgreSQL, shared with other processes.
+    pub fn is_shared(&self) -> bool {
+        self.shared().is_some()
+    }
+
+    /// Brings the changes since `since` (everything when `None`) into the copy, and the queue
+    /// depth; returns the mark for the next look.
+    fn follow(
+        &self,
+        postgres: &Postgres,
+        since: Option<SystemTime>,
+    ) -> Result<SystemTime, StoreError> {
+        let (changes, mark) = postgres.changes(since)?;
+        let depth = postgres.depth()?;
+        *lock(&self.shared_depth) = depth;
+        let mut state = lock(&self.state);
+        for change in changes {
+            match change {
+                Change::Live(record) => match state.jobs.get(&record.id) {
+                    Some(entry) => {
+                        entry.record.send_if_modified(|current| {
+                            let mut record = *record;
+                            // Deliveries are made here by this copy: the stored ones may lag.
+                            if deliveries_made(&current.webhook) > deliveries_made(&record.webhook)
+                            {
+                                record.webhook = current.webhook.clone();
+                            }
+                            let modified = *current != record;
+                            *current = record;
+                            modified
+                        });
+                    }
+                    None => {
+                        state.remember(JobEntry::new(*record));
+                    }
+                },
+                Change::Deleted(id) => state.forget(&id),
+            }
+        }
+        Ok(mark)
+    }
+
+    /// The follower thread (shared backend): [`Queue::follow`] every [`FOLLOW_EVERY`], and
+    /// takes back expired leases (when no worker is left to) until draining.
+    fn follow_changes(self: Arc<Self>, mut mark: SystemTime) {
+        let mut last_reap = Instant::now();
+        let postgres = self
+            .shared()
+            .expect("the follower runs on the shared backend");
+        loop {
+            {
+                let state = lock(&self.state);
+                let (state, _) = self
+                    .changed
+                    .wait_timeout(state, FOLLOW_EVERY)
+                    .unwrap_or_else(|p| p.into_inner());
+                if state.draining {
+                    return;
+                }
+            }
+            match self.follow(postgres, Some(mark)) {
+                Ok(next) => mark = next,
+                Err(error) => warn!("following the job database: {error}"),
+            }
+            if last_reap.elapsed() >= REAP_EVERY {
+                last_reap = Instant::now();
+                reap_expired(postgres, self.config.retention);
+            }
+        }
+    }
+
     pub fn workers(&self) -> usize {
         self.config.workers
     }
 
-    /// The decode slots (see the field).
+    /// The decode slots (see [`Queue::runner`]).
     pub fn decode_slots(&self) -> Arc<tokio::sync::Semaphore> {
-        Arc::clone(&self.decode_slots)
+        Arc::clone(&self.runner.decode_slots)
     }
 
     pub fn store(&self) -> &Store {
-        &self.store
+        &self.runner.store
     }
 
-    /// (queued, running) job counts.
+    /// (queued, running) job counts: of every process on the shared backend (as the follower
+    /// last read them).
     pub fn depth(&self) -> (usize, usize) {
+        if self.is_shared() {
+            return *lock(&self.shared_depth);
+        }
         let state = lock(&self.state);
         (state.pending.len(), state.running)
     }
 
-    /// Ready to take work: not draining and every runner alive.
+    /// Ready to take work: not draining and every runner (or job slot) alive.
     pub fn is_ready(&self) -> bool {
-        !lock(&self.state).draining
-            && self.runners_alive.load(Ordering::SeqCst) == self.config.workers
+        if lock(&self.state).draining {
+            return false;
+        }
+        match (&self.workers, self.is_shared()) {
+            (Some(workers), _) => workers.is_ready(),
+            (None, true) => true,
+            (None, false) => self.runners_alive.load(Ordering::SeqCst) == self.config.workers,
+        }
     }
 
-    /// The job, if it exists and `owner` may see it.
+    /// The job, if it exists and `owner` may see it. On the shared backend a job not in the
+    /// copy yet (just admitted by another replica) is read from the database: a short
+    /// blocking lookup, on a request's thread.
     pub fn get(&self, id: &str, owner: &Option<String>) -> Option<Arc<JobEntry>> {
-        lock(&self.state)
-            .jobs
-            .get(id)
-            .filter(|entry| &entry.owner == owner)
-            .cloned()
+        let cached = lock(&self.state).jobs.get(id).cloned();
+        let entry = match (cached, self.shared()) {
+            (Some(entry), _) => entry,
+            (None, Some(postgres)) => match postgres.get(id) {
+                Ok(Some(record)) => lock(&self.state).remember(JobEntry::new(record)),
+                Ok(None) => return None,
+                Err(error) => {
+                    warn!(job_id = %id, "reading a job: {error}");
+                    return None;
+                }
+            },
+            (None, None) => return None,
+        };
+        (&entry.owner == owner).then_some(entry)
     }
 
     /// Every job, oldest first (for work resumed after a restart, such as webhook deliveries).
@@ -267,10 +408,23 @@ impl Queue {
 
     /// Jobs ahead of this one, while it is queued.
     pub fn queue_position(&self, id: &str) -> Option<usize> {
-        lock(&self.state)
-            .pending
-            .iter()
-            .position(|queued| queued == id)
+        self.position_in(&lock(&self.state), id)
+    }
+
+    /// On the shared backend, from the copy: the queued jobs older than this one.
+    fn position_in(&self, state: &State, id: &str) -> Option<usize> {
+        if !self.is_shared() {
+            return state.pending.iter().position(|queued| queued == id);
+        }
+        let queued = |entry: &Arc<JobEntry>| entry.record.borrow().status == Status::Queued;
+        state.jobs.get(id).filter(|entry| queued(entry))?;
+        Some(
+            state
+                .jobs
+                .range(..id.to_owned())
+                .filter(|(_, entry)| queued(entry))
+                .count(),
+        )
     }
 
     /// A page of `owner`'s jobs, newest first, strictly older than `before`, and whether more
@@ -283,9 +437,24 @@ impl Queue {
         before: Option<&str>,
         limit: usize,
     ) -> Result<(Page, bool), StoreError> {
-        let mut ids = self.store.list_ids(owner, status, before, limit + 1)?;
+        let mut ids = self.store().list_ids(owner, status, before, limit + 1)?;
         let more = ids.len() > limit;
         ids.truncate(limit);
+        if let Some(postgres) = self.shared() {
+            // Jobs admitted by another replica since the follower last looked.
+            let missing: Vec<_> = {
+                let state = lock(&self.state);
+                ids.iter()
+                    .filter(|id| !state.jobs.contains_key(*id))
+                    .cloned()
+                    .collect()
+            };
+            for id in missing {
+                if let Some(record) = postgres.get(&id)? {
+                    lock(&self.state).remember(JobEntry::new(record));
+                }
+            }
+        }
         let state = lock(&self.state);
         let page = ids
             .iter()
@@ -294,7 +463,7 @@ impl Queue {
             // The live state wins over a stored status a failed write left behind.
             .filter(|record| status.is_none_or(|status| record.status == status))
             .map(|record| {
-                let position = state.pending.iter().position(|queued| *queued == record.id);
+                let position = self.position_in(&state, &record.id);
                 (record, position)
             })
             .collect();
@@ -339,15 +508,21 @@ impl Queue {
         if state.draining {
             return Some(ApiError::ShuttingDown);
         }
-        if state.pending.len() >= self.config.max_queued {
-            // Time for the queue ahead to clear, from the mean job duration so far.
-            let mean = self.metrics.mean_job_seconds().unwrap_or(10.0);
-            let seconds = (state.pending.len() as f64 * mean / self.config.workers as f64)
-                .ceil()
-                .max(1.0);
-            return Some(ApiError::QueueFull(state.pending.len(), seconds as u64));
-        }
-        None
+        let queued = match self.is_shared() {
+            true => lock(&self.shared_depth).0,
+            false => state.pending.len(),
+        };
+        (queued >= self.config.max_queued).then(|| self.queue_full(queued))
+    }
+
+    /// 503 `queue-full`, with the time for the queue ahead to clear from the mean job
+    /// duration so far.
+    fn queue_full(&self, queued: usize) -> ApiError {
+        let mean = self.metrics.mean_job_seconds().unwrap_or(10.0);
+        let seconds = (queued as f64 * mean / self.config.workers.max(1) as f64)
+            .ceil()
+            .max(1.0);
+        ApiError::QueueFull(queued, seconds as u64)
     }
 
     /// Stores inputs and record, then queues the job (or replays an idempotent duplicate).
@@ -358,15 +533,15 @@ impl Queue {
     ) -> Result<Admission, ApiError> {
         let id = record.id.clone();
         for (name, bytes) in &inputs {
-            if let Err(error) = self.store.write_artefact(&id, name, bytes) {
-                let _ = self.store.remove_artefacts(&id);
+            if let Err(error) = self.store().write_artefact(&id, name, bytes) {
+                let _ = self.store().remove_artefacts(&id);
                 return Err(error.into());
             }
         }
         let mut state = lock(&self.state);
         let refuse = |state: MutexGuard<'_, State>, error: ApiError| {
             drop(state);
-            let _ = self.store.remove_artefacts(&id);
+            let _ = self.store().remove_artefacts(&id);
             Err(error)
         };
         if let Some(idempotency) = &record.idempotency {
@@ -384,32 +559,57 @@ impl Queue {
                     Err(ApiError::IdempotencyMismatch)
                 };
                 drop(state);
-                let _ = self.store.remove_artefacts(&id);
+                let _ = self.store().remove_artefacts(&id);
                 return result;
             }
+        }
+        if let Some(postgres) = self.shared() {
+            if state.draining {
+                return refuse(state, ApiError::ShuttingDown);
+            }
+            drop(state);
+            let admitted = self.admit_shared(postgres, record);
+            if !matches!(admitted, Ok(Admission::Created(_))) {
+                let _ = self.store().remove_artefacts(&id);
+            }
+            return admitted;
         }
         if let Some(error) = self.capacity_error(&state) {
             return refuse(state, error);
         }
-        if let Err(error) = self.store.save(&record) {
+        if let Err(error) = self.store().save(&record) {
             return refuse(state, ApiError::from(error));
         }
-        if let Some(idempotency) = &record.idempotency {
-            state
-                .idempotency
-                .insert((record.owner.clone(), idempotency.key.clone()), id.clone());
-        }
-        let entry = JobEntry::new(record);
-        state.jobs.insert(id.clone(), Arc::clone(&entry));
+        let entry = state.remember(JobEntry::new(record));
         state.pending.push_back(id);
         drop(state);
         self.changed.notify_one();
         Ok(Admission::Created(entry))
     }
 
+    /// Queues a job in the database (the unique index decides between replicas which of two
+    /// submissions with one Idempotency-Key is first).
+    fn admit_shared(&self, postgres: &Postgres, record: JobRecord) -> Result<Admission, ApiError> {
+        match postgres.insert(&record, self.config.max_queued)? {
+            Inserted::Created => {
+                let entry = lock(&self.state).remember(JobEntry::new(record));
+                Ok(Admission::Created(entry))
+            }
+            Inserted::Existing(earlier) if earlier.idempotency == record.idempotency => {
+                let entry = lock(&self.state).remember(JobEntry::new(*earlier));
+                Ok(Admission::Replayed(entry))
+            }
+            Inserted::Existing(_) => Err(ApiError::IdempotencyMismatch),
+            Inserted::Full(queued) => Err(self.queue_full(queued)),
+        }
+    }
+
     /// Cancels a job: a queued one ends at once, a running one within one iteration.
     /// Returns whether the job was running (the cancel is then still in progress).
     pub fn cancel(&self, entry: &JobEntry) -> Result<bool, ApiError> {
+        if let Some(postgres) = self.shared() {
+            return self.cancel_shared(postgres, entry);
+        }
         let mut state = lock(&self.state);
         let status = entry.record.borrow().status;
         match status {
@@ -422,8 +622,35 @@ impl Queue {
         }
         state.pending.retain(|queued| *queued != entry.id);
         drop(state);
-        self.finish(entry, Status::Canceled, None, Some(CancelReason::User))?;
+        entry.end(
+            Status::Canceled,
+            None,
+            Some(CancelReason::User),
+            self.config.retention,
+        );
+        self.save(entry)?;
         Ok(false)
+    }
+
+    /// [`Queue::cancel`] in the database: a queued job (whatever the copy says) ends there;
+    /// a running one's worker stops it at its next heartbeat.
+    fn cancel_shared(&self, postgres: &Postgres, entry: &JobEntry) -> Result<bool, ApiError> {
+        let mut ended = entry.snapshot();
+        ended.end(
+            Status::Canceled,
+            None,
+            Some(CancelReason::User),
+            self.config.retention,
+        );
+        let outcome = postgres.cancel(&ended)?;
+        let current = match outcome {
+            Canceled::Ended => Some(ended),
+            Canceled::Stopping | Canceled::Nothing => postgres.get(&entry.id)?,
+        };
+        if let Some(current) = current {
+            entry.record.send_replace(current);
+        }
+        Ok(matches!(outcome, Canceled::Stopping))
     }
 
     /// Deletes a job: its record for good, then its files. The tombstone comes first: if it
@@ -432,18 +659,14 @@ impl Queue {
     /// when it stops (removing them here would race the files it is still writing); files
     /// that cannot be removed are left to the orphan sweep.
     pub fn delete(&self, entry: &JobEntry) -> Result<(), ApiError> {
-        self.store.tombstone(&entry.id)?;
+        self.store().tombstone(&entry.id)?;
         let mut state = lock(&self.state);
-        entry.deleted.store(true, Ordering::SeqCst);
+        // On the shared backend the job's worker, wherever it is, learns it at its next
+        // heartbeat and removes the files itself.
         let running = entry.record.borrow().status == Status::Running;
         entry.request_cancel(CancelReason::User);
-        state.pending.retain(|queued| *queued != entry.id);
-        state.jobs.remove(&entry.id);
-        if let Some(idempotency) = &entry.record.borrow().idempotency {
-            state
-                .idempotency
-                .remove(&(entry.owner.clone(), idempotency.key.clone()));
-        }
+        state.forget(&entry.id);
+        entry.deleted.store(true, Ordering::SeqCst);
         drop(state);
         if !running {
             self.remove_deleted_files(&entry.id);
@@ -452,7 +675,7 @@ impl Queue {
     }
 
     fn remove_deleted_files(&self, id: &str) {
-        if let Err(error) = self.store.remove_artefacts(id) {
+        if let Err(error) = self.store().remove_artefacts(id) {
             warn!(job_id = %id, "removing a deleted job's files (left to the sweep): {error}");
         }
     }
@@ -461,7 +684,7 @@ impl Queue {
     /// [`Store::sweep_orphans`]); returns how many.
     pub fn sweep_orphans(&self, min_age: Duration) -> usize {
         let removed = self
-            .store
+            .store()
             .sweep_orphans(min_age, |id| lock(&self.state).jobs.contains_key(id));
         self.metrics.orphans_swept(removed);
         removed
@@ -480,16 +703,21 @@ impl Queue {
             .collect();
         for entry in &expired {
             let _span = info_span!("expire", job_id = %entry.id).entered();
-            if let Err(error) = self.store.remove_artefacts(&entry.id) {
+            if let Err(error) = self.store().remove_artefacts(&entry.id) {
                 warn!("removing expired results: {error}");
                 continue;
             }
             entry
                 .record
                 .send_modify(|record| record.data_removed = true);
-            if let Err(error) = self.store.save(&entry.snapshot()) {
+            if let Err(error) = self.store().save(&entry.snapshot()) {
                 warn!("saving expired job: {error}");
             }
+        }
+        if let Some(postgres) = self.shared()
+            && let Err(error) = postgres.purge_tombstones(TOMBSTONE_AGE)
+        {
+            warn!("purging deleted jobs: {error}");
         }
         expired.len()
     }
@@ -520,6 +748,9 @@ impl Queue {
             }
         }
         drop(state);
+        if let Some(workers) = &self.workers {
+            workers.drain(deadline.saturating_duration_since(Instant::now()));
+        }
         for handle in lock(&self.runners).drain(..) {
             let _ = handle.join();
         }
@@ -544,7 +775,7 @@ impl Queue {
             // neither pending nor running.
             entry.record.send_modify(|record| {
                 record.status = Status::Running;
-                record.started_at = Some(now_ms());
+                record.started_at = Some(super::model::now_ms());
             });
             drop(state);
             self.run_job(&entry, pool);
@@ -565,200 +796,23 @@ impl Queue {
 
     fn run_job(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) {
         let _span = info_span!("job", job_id = %entry.id).entered();
-        let started = Instant::now();
         if let Err(error) = retry_transient("saving running state", || {
-            self.store.save(&entry.snapshot())
+            self.store().save(&entry.snapshot())
         }) {
             warn!("saving running state: {error}");
         }
-        info!("started");
-        let outcome = self.execute(entry, pool);
-        if entry.deleted.load(Ordering::SeqCst) {
-            info!("deleted while running");
-            return;
-        }
-        let label = match &outcome {
-            Outcome::Succeeded(_) => "succeeded",
-            Outcome::Failed(_) => "failed",
-            Outcome::Canceled => "canceled",
-            Outcome::Interrupted => "interrupted",
-        };
-        self.metrics.job_finished(label, started.elapsed());
-        info!(
-            outcome = label,
-            seconds = started.elapsed().as_secs_f32(),
-            "finished"
-        );
-        let saved = match outcome {
-            Outcome::Succeeded(mode) => {
-                entry.record.send_modify(|record| record.mode = Some(mode));
-                self.finish(entry, Status::Succeeded, None, None)
-            }
-            Outcome::Failed(error) => self.finish(
-                entry,
-                Status::Failed,
-                Some(error),
-                *lock(&entry.cancel_reason),
-            ),
-            Outcome::Canceled => {
-                self.finish(entry, Status::Canceled, None, Some(CancelReason::User))
-            }
-            Outcome::Interrupted => {
-                // Saved as queued: the next start runs it again.
-                entry.record.send_modify(|record| {
-                    record.status = Status::Queued;
-                    record.started_at = None;
-                    record.progress = None;
-                    record.cancel_requested = false;
-                });
-                retry_transient("saving an interrupted job", || {
-                    self.store.save(&entry.snapshot())
-                })
-                .map_err(ApiError::from)
-            }
-        };
-        if let Err(error) = saved {
+        // Saved as queued when interrupted: the next start runs it again.
+        if self.runner.run(entry, pool) != Settled::Deleted
+            && let Err(error) = self.save(entry)
+        {
             warn!("saving the outcome: {error}");
         }
     }
 
-    /// Marks a job terminal and persists it.
-    fn finish(
-        &self,
-        entry: &JobEntry,
-        status: Status,
-        error: Option<ApiError>,
-        reason: Option<CancelReason>,
-    ) -> Result<(), ApiError> {
-        let now = now_ms();
-        entry.record.send_modify(|record| {
-            record.status = status;
-            record.completed_at = Some(now);
-            record.expires_at = Some(now + self.config.retention.as_millis() as u64);
-            record.error = error.as_ref().map(ApiError::problem);
-            record.cancel_reason = reason;
-        });
-        retry_transient("saving the outcome", || self.store.save(&entry.snapshot()))
+    /// Persists a job's record, retrying transient failures.
+    fn save(&self, entry: &JobEntry) -> Result<(), ApiError> {
+        retry_transient("saving the job", || self.store().save(&entry.snapshot()))
             .map_err(ApiError::from)
-    }
-
-    fn execute(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) -> Outcome {
-        let record = entry.snapshot();
-        let read = |name: &str| {
-            retry_transient("reading the job's inputs", || {
-                self.store.read_artefact(&entry.id, name)
-            })
-        };
-        let inputs = (|| {
-            let missing = || ApiError::Internal("the job's input files are missing".into());
-            let image = read("input/image")
-                .map_err(ApiError::from)?
-                .ok_or_else(missing)?;
-            let albedo = if record.inputs.albedo {
-                Some(
-                    read("input/albedo")
-                        .map_err(ApiError::from)?
-                        .ok_or_else(missing)?,
-                )
-            } else {
-                None
-            };
-            let labels = if record.inputs.labels {
-                Some(
-                    read("input/labels")
-                        .map_err(ApiError::from)?
-                        .ok_or_else(missing)?,
-                )
-            } else {
-                None
-            };
-            let masks = (0..record.inputs.masks)
-                .map(|index| {
-                    Ok(Bytes::from(
-                        read(&format!("input/mask-{index}"))
-                            .map_err(ApiError::from)?
-                            .ok_or_else(missing)?,
-                    ))
-                })
-                .collect::<Result<Vec<_>, ApiError>>()?;
-            // A runner waits for its slot as long as it takes (the semaphore is never closed).
-            let _slot = self
-                .runtime
-                .block_on(Arc::clone(&self.decode_slots).acquire_owned());
-            decode_inputs(
-                &image,
-                albedo.as_deref(),
-                &masks,
-                labels.as_deref(),
-                &self.limits,
-                record.inputs.accept_truncated,
-            )
-        })();
-        let inputs = match inputs {
-            Ok(inputs) => inputs,
-            Err(error) => return Outcome::Failed(error),
-        };
-        let deadline = {
-            let (limit, entry) = (self.config.job_time_limit, Arc::clone(entry));
-            self.runtime.spawn(async move {
-                tokio::time::sleep(limit).await;
-                entry.request_cancel(CancelReason::Deadline);
-            })
-        };
-        let observer = JobObserver {
-            store: &self.store,
-            entry,
-        };
-        let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
-            pool.install(|| pipeline::run(&inputs, &record.params, &observer, &entry.cancel))
-        }));
-        deadline.abort();
-        match result {
-            Ok(Ok(output)) => match self.write_results(entry, &output) {
-                Ok(()) => Outcome::Succeeded(output.mode.into()),
-                Err(error) => Outcome::Failed(ApiError::from(error)),
-            },
-            Ok(Err(pipeline::Error::Canceled)) => match *lock(&entry.cancel_reason) {
-                Some(CancelReason::Deadline) => {
-                    Outcome::Failed(ApiError::TimeLimit(self.config.job_time_limit.as_secs()))
-                }
-                Some(CancelReason::Shutdown) => Outcome::Interrupted,
-                Some(CancelReason::User) | None => Outcome::Canceled,
-            },
-            Ok(Err(pipeline::Error::Input(error))) => Outcome::Failed(input_error("inputs")(error)),
-            Ok(Err(pipeline::Error::Params(message))) => {
-                Outcome::Failed(ApiError::InvalidParams(message))
-            }
-            Ok(Err(pipeline::Error::Internal(message))) => {
-                warn!(job_id = %entry.id, "internal error in the pipeline: {message}");
-                Outcome::Failed(ApiError::Internal(message))
-            }
-            Err(panic) => {
-                let message = panic
-                    .downcast_ref::<&str>()
-                    .map(|s| s.to_string())
-                    .or_else(|| panic.downcast_ref::<String>().cloned())
-                    .unwrap_or_else(|| "panic".into());
-                Outcome::Failed(ApiError::PipelineCrashed(message))
-            }
-        }
-    }
-
-    /// The run's files, in [`pipeline::Output::artefacts`] order (`result.svg` last), with
-    /// their digests in the record (saved when the job is marked succeeded).
-    fn write_results(&self, entry: &JobEntry, output: &pipeline::Output) -> Result<(), StoreError> {
-        let mut checksums = BTreeMap::new();
-        for artefact in output.artefacts() {
-            let name = artefact.kind.name();
-            retry_transient("writing the results", || {
-                self.store.write_artefact(&entry.id, &name, &artefact.bytes)
-            })?;
-            checksums.insert(name, digest(&artefact.bytes));
-        }
-        entry
-            .record
-            .send_modify(|record| record.checksums = checksums);
-        Ok(())
     }
 
     /// A stored file of a job, checked against the digest recorded when it was written: in the
@@ -771,7 +825,7 @@ impl Queue {
             .and_then(|entry| entry.record.borrow().checksums.get(name).cloned());
         let expected = match recorded {
             Some(digest) => Some(digest),
-            None => match self.store.folder_digest(id, name) {
+            None => match self.store().folder_digest(id, name) {
                 Ok(digest) => digest,
                 Err(error @ StoreError::CorruptRecord { .. }) => {
                     tracing::error!(job_id = %id, name, %error, "unreadable digests");
@@ -780,7 +834,7 @@ impl Queue {
                 Err(error) => return Err(error.into()),
             },
         };
-        let bytes = self.store.read_artefact(id, name)?;
+        let bytes = self.store().read_artefact(id, name)?;
         if let (Some(bytes), Some(expected)) = (&bytes, expected)
             && digest(bytes) != expected
         {
@@ -788,65 +842,5 @@ impl Queue {
             return Err(ApiError::CorruptResult(name.to_owned()));
         }
         Ok(bytes)
-    }
-}
-
-enum Outcome {
-    Succeeded(pipeline::Mode),
-    Failed(ApiError),
-    Canceled,
-    /// Stopped by shutdown; runs again after restart.
-    Interrupted,
-}
-
-/// Pipeline threads run at nice 10, so the HTTP threads win the CPU whenever both want it and
-/// polls stay fast while every core is busy with jobs. (On Linux `setpriority` with `who = 0`
-/// applies to the calling thread only.) Best effort: failure leaves the default priority.
-fn lower_thread_priority() {
-    #[cfg(target_os = "linux")]
-    // SAFETY: plain syscall on the current thread; no memory is shared.
-    unsafe {
-        libc::setpriority(libc::PRIO_PROCESS, 0, PIPELINE_NICE);
-    }
-}
-
-#[cfg(target_os = "linux")]
-const PIPELINE_NICE: libc::c_int = 10;
-
-/// Turns pipeline callbacks into job progress and stored previews.
-struct JobObserver<'a> {
-    store: &'a Store,
-    entry: &'a JobEntry,
-}
-
-impl Observer for JobObserver<'_> {
-    fn progress(&self, progress: &Progress) {
-        let view = ProgressView::from(progress);
-        self.entry
-            .record
-            .send_modify(|record| record.progress = Some(view));
-    }
-
-    fn preview(&self, name: &str, image: &Image) {
-        let safe = !name.is_empty()
-            && name
-                .bytes()
-                .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_');
-        if !safe {
-            warn!(name, "preview with an unusable name skipped");
-            return;
-        }
-        let png = crate::imageio::encode_png(image);
-        match self
-            .store
-            .write_artefact(&self.entry.id, &format!("previews/{name}.png"), &png)
-        {
-            Ok(()) => self.entry.record.send_modify(|record| {
-                if !record.previews.iter().any(|existing| existing == name) {
-                    record.previews.push(name.to_owned());
-                }
-            }),
-            Err(error) => warn!(name, "storing a preview: {error}"),
-        }
     }
 }

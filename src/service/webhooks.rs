@@ -37,7 +37,8 @@ use super::model::{
     Attempt, Delivery, DeliveryStatus, JobRecord, JobView, Status, Webhook, WebhookEvent, now_ms,
     rfc3339,
 };
-use super::queue::{JobEntry, Queue};
+use super::queue::Queue;
+use super::runner::JobEntry;
 use super::submit::WebhookRequest;
 
 /// Webhook settings of `covec serve`.
@@ -127,7 +128,14 @@ impl Webhooks {
             client: Client::builder(TokioExecutor::new()).build(connector),
             queue,
         });
-        for entry in webhooks.queue.entries() {
+        // On the shared backend every API replica would resume them: deliveries are made by
+        // the replica that admitted the job, while it runs (README, "Scaling out").
+        let resumable = if webhooks.queue.is_shared() {
+            Vec::new()
+        } else {
+            webhooks.queue.entries()
+        };
+        for entry in resumable {
             let unfinished = entry
                 .record
                 .borrow()
@@ -389,7 +397,7 @@ impl Webhooks {
             return;
         }
         let (queue, record) = (Arc::clone(&self.queue), entry.snapshot());
-        let saved = tokio::task::spawn_blocking(move || queue.store().save(&record)).await;
+        let saved = tokio::task::spawn_blocking(move || queue.store().save_webhook(&record)).await;
         if let Ok(Err(error)) = saved {
             warn!(job_id = %entry.id, "saving webhook deliveries: {error}");
         }

@@ -3,9 +3,12 @@
 
 #![allow(dead_code)] // each test binary uses a different part
 
+pub mod postgres;
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
@@ -17,11 +20,28 @@ use hyper_util::client::legacy::connect::HttpConnector;
 use hyper_util::rt::TokioExecutor;
 use serde_json::Value;
 
-/// A data directory under the system temp dir, removed on drop.
-pub struct DataDir(pub PathBuf);
+/// A data directory under the system temp dir, removed on drop. With
+/// `COVEC_TEST_BACKEND=postgres` it comes with its own throwaway PostgreSQL, which every
+/// [`Server`] started on it uses for its records (`--database-url`): the service tests then
+/// run against the shared backend (scripts/test.sh runs some of them both ways).
+pub struct DataDir(pub PathBuf, Option<Box<postgres::Postgres>>);
+
+/// The database of each data directory that has one (see [`DataDir`]).
+static DATABASES: Mutex<Vec<(PathBuf, String)>> = Mutex::new(Vec::new());
 
 impl DataDir {
     pub fn new(name: &str) -> Self {
+        let mut dir = Self::plain(name);
+        if std::env::var("COVEC_TEST_BACKEND").as_deref() == Ok("postgres") {
+            let database = postgres::Postgres::start();
+            lock(&DATABASES).push((dir.0.clone(), database.url.clone()));
+            dir.1 = Some(Box::new(database));
+        }
+        dir
+    }
+
+    /// A data directory without a database.
+    pub fn plain(name: &str) -> Self {
         static NEXT: AtomicUsize = AtomicUsize::new(0);
         let path = std::env::temp_dir().join(format!(
             "covec-{name}-{}-{}",
@@ -30,12 +50,28 @@ impl DataDir {
         ));
         let _ = std::fs::remove_dir_all(&path);
         std::fs::create_dir_all(&path).unwrap();
-        Self(path)
+        Self(path, None)
     }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// `--database-url` for a server on `data_dir`, when the directory has a database.
+fn database_args(data_dir: &Path) -> Vec<String> {
+    lock(&DATABASES)
+        .iter()
+        .find(|(dir, _)| dir == data_dir)
+        .map(|(_, url)| vec!["--database-url".to_owned(), url.clone()])
+        .unwrap_or_default()
 }
 
 impl Drop for DataDir {
     fn drop(&mut self) {
+        lock(&DATABASES).retain(|(dir, _)| *dir != self.0);
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }
@@ -75,10 +111,21 @@ impl Server {
 
     /// [`Server::start`] with these environment variables added.
     pub fn start_with_env(data_dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Self {
-        let log = std::fs::File::create(data_dir.with_extension("log")).unwrap();
+        Self::start_logged(data_dir, &data_dir.with_extension("log"), args, env)
+    }
+
+    /// [`Server::start_with_env`] logging to `log_path` (for servers sharing a data directory).
+    pub fn start_logged(
+        data_dir: &Path,
+        log_path: &Path,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
+        let log = std::fs::File::create(log_path).unwrap();
         let mut child = Command::new(env!("CARGO_BIN_EXE_covec"))
             .args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
             .arg(data_dir)
+            .args(database_args(data_dir))
             .args(args)
             .envs(env.iter().copied())
             .env("COVEC_LOG", "info")
@@ -96,7 +143,7 @@ impl Server {
             .unwrap_or_else(|| {
                 panic!(
                     "unexpected first line {line:?}; log: {}",
-                    data_dir.with_extension("log").display()
+                    log_path.display()
                 )
             })
             .to_owned();

@@ -24,6 +24,19 @@ pub enum StoreError {
     /// The object store's runtime stopped while a request was waiting (shutdown).
     #[error("object store: stopped")]
     ObjectStoreStopped,
+    #[error("job database: {0}")]
+    Postgres(#[from] tokio_postgres::Error),
+    /// No connection to PostgreSQL could be had in time (the server is down or unreachable).
+    #[error("job database: {0}")]
+    DatabasePool(String),
+    #[error("job database URL: {0}")]
+    DatabaseUrl(String),
+    /// The database client's runtime stopped while a request was waiting (shutdown).
+    #[error("job database: stopped")]
+    DatabaseStopped,
+    /// An operation of the SQLite records asked of the PostgreSQL backend.
+    #[error("job database: not available on the PostgreSQL backend")]
+    NotEmbedded,
 }
 
 impl StoreError {
@@ -42,6 +55,12 @@ impl StoreError {
                 "object store: request failed".to_owned()
             }
             StoreError::ObjectStoreUrl { .. } => "object store: misconfigured".to_owned(),
+            // PostgreSQL's messages may name hosts and users.
+            StoreError::Postgres(_)
+            | StoreError::DatabasePool(_)
+            | StoreError::DatabaseStopped
+            | StoreError::NotEmbedded => "job database: request failed".to_owned(),
+            StoreError::DatabaseUrl(_) => "job database: misconfigured".to_owned(),
         }
     }
 }
@@ -73,8 +92,21 @@ impl StoreError {
                     | rusqlite::ErrorCode::DiskFull
                     | rusqlite::ErrorCode::OutOfMemory
             ),
+            // A lost connection, a server restarting or refusing connections, a serialisation
+            // conflict or deadlock: worth another try. Errors without a SQL state are the
+            // connection's own.
+            StoreError::Postgres(error) => error.code().is_none_or(|code| {
+                let code = code.code();
+                code.starts_with("08")
+                    || code.starts_with("57P")
+                    || matches!(code, "40001" | "40P01" | "53300")
+            }),
+            StoreError::DatabasePool(_) => true,
             // object_store already retried network failures, 5xx and 429 ([`Artefacts`]).
             StoreError::Sqlite(_)
+            | StoreError::DatabaseUrl(_)
+            | StoreError::DatabaseStopped
+            | StoreError::NotEmbedded
             | StoreError::CorruptRecord { .. }
             | StoreError::ObjectStore(_)
             | StoreError::ObjectStoreUrl { .. }

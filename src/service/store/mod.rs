@@ -1,5 +1,6 @@
-//! Persistence: job records in SQLite in the data directory, artefacts as files beside them or
-//! as objects in an S3-compatible bucket ([`Artefacts`]).
+//! Persistence: job records in SQLite in the data directory (the embedded default) or in
+//! PostgreSQL shared by API replicas and workers ([`Postgres`], `--database-url`); artefacts as
+//! files in the data directory or as objects in an S3-compatible bucket ([`Artefacts`]).
 //!
 //! Records go through rusqlite rather than sqlx: every access is a short synchronous statement
 //! made from a worker thread or a `spawn_blocking` task, so an async driver buys nothing, and
@@ -21,16 +22,27 @@ use sha2::{Digest, Sha256};
 
 mod artefacts;
 mod error;
+mod postgres;
 
 use super::model::{JobRecord, Status, is_job_id, now_ms};
 use artefacts::Artefacts;
 use error::io_error;
 pub use error::{StoreError, retry_transient};
+pub use postgres::{Beat, Canceled, Change, Claim, Inserted, MAX_ATTEMPTS, Postgres};
 
 pub struct Store {
     artefacts: Artefacts,
-    db: Mutex<Connection>,
-    reader: Mutex<Connection>,
+    records: Records,
+}
+
+/// Where job records live.
+enum Records {
+    /// SQLite in the data directory: one writer connection, one for listings.
+    Sqlite {
+        db: Mutex<Connection>,
+        reader: Mutex<Connection>,
+    },
+    Postgres(Postgres),
 }
 
 /// What [`Store::recover`] found.
@@ -42,61 +54,54 @@ pub struct Recovered {
 }
 
 impl Store {
-    /// Opens (creating if needed) the data directory and its database, adding the listing
-    /// columns and indexes to a database written before they existed; artefacts go to the
-    /// data directory or, given `object_store` (`s3://bucket/prefix`), to that bucket.
-    pub fn open(root: &Path, object_store: Option<&str>) -> Result<Self, StoreError> {
+    /// Opens (creating if needed) the data directory; records go to its SQLite database or,
+    /// given `database_url` (`postgres://…`), to that PostgreSQL database (migrated first);
+    /// artefacts go to the data directory or, given `object_store` (`s3://bucket/prefix`), to
+    /// that bucket.
+    pub fn open(
+        root: &Path,
+        object_store: Option<&str>,
+        database_url: Option<&str>,
+    ) -> Result<Self, StoreError> {
         fs::create_dir_all(root).map_err(io_error(root))?;
         let artefacts = Artefacts::open(root, object_store)?;
-        let path = root.join("jobs.sqlite3");
-        let db = Connection::open(&path)?;
-        // WAL: readers never block the writer; NORMAL sync is durable across process crashes.
-        db.pragma_update(None, "journal_mode", "WAL")?;
-        db.pragma_update(None, "synchronous", "NORMAL")?;
-        db.execute_batch(
-            "CREATE TABLE IF NOT EXISTS jobs (id TEXT PRIMARY KEY, record TEXT NOT NULL);
-             CREATE TABLE IF NOT EXISTS quarantine (
-                 id TEXT PRIMARY KEY, record TEXT NOT NULL, reason TEXT NOT NULL, at INTEGER NOT NULL
-             );",
-        )?;
-        let columns: Vec<String> = db
-            .prepare("SELECT name FROM pragma_table_info('jobs')")?
-            .query_map([], |row| row.get(0))?
-            .collect::<Result<_, _>>()?;
-        for (column, kind) in [
-            ("owner", "TEXT"),
-            ("status", "TEXT"),
-            ("deleted", "INTEGER NOT NULL DEFAULT 0"),
-        ] {
-            if !columns.iter().any(|name| name == column) {
-                db.execute_batch(&format!("ALTER TABLE jobs ADD COLUMN {column} {kind}"))?;
-            }
-        }
-        db.execute_batch(
-            "CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs (owner, id);
-             CREATE INDEX IF NOT EXISTS jobs_by_owner_status ON jobs (owner, status, id);",
-        )?;
-        // Listing reads on its own connection, so a page never waits for a worker's write
-        // (rusqlite's connections wait up to 5 s for a lock held by the other).
-        let reader = Connection::open(&path)?;
-        Ok(Self {
-            artefacts,
-            db: Mutex::new(db),
-            reader: Mutex::new(reader),
-        })
+        let records = match database_url {
+            Some(url) => Records::Postgres(Postgres::connect(url)?),
+            None => open_sqlite(root)?,
+        };
+        Ok(Self { artefacts, records })
     }
 
-    fn db(&self) -> std::sync::MutexGuard<'_, Connection> {
-        self.db
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    /// The PostgreSQL records, when records live there (the shared backend).
+    pub fn shared(&self) -> Option<&Postgres> {
+        match &self.records {
+            Records::Postgres(postgres) => Some(postgres),
+            Records::Sqlite { .. } => None,
+        }
+    }
+
+    /// The SQLite writer connection; [`StoreError::NotEmbedded`] on the shared backend, whose
+    /// records are written through [`Store::shared`] instead.
+    fn db(&self) -> Result<std::sync::MutexGuard<'_, Connection>, StoreError> {
+        match &self.records {
+            Records::Sqlite { db, .. } => {
+                Ok(db.lock().unwrap_or_else(|poisoned| poisoned.into_inner()))
+            }
+            Records::Postgres(_) => Err(StoreError::NotEmbedded),
+        }
     }
 
     /// Writes a job's record, unless the job was deleted: a tombstone is final, so a worker
     /// finishing or a cancel racing a DELETE cannot bring the record back.
+    ///
+    /// On the shared backend only a job no worker holds is written, and its webhook deliveries
+    /// are kept ([`Postgres::save_idle`]).
     pub fn save(&self, record: &JobRecord) -> Result<(), StoreError> {
+        if let Some(postgres) = self.shared() {
+            return postgres.save_idle(record);
+        }
         let json = serde_json::to_string(record).expect("a job record always serialises");
-        self.db().execute(
+        self.db()?.execute(
             "INSERT INTO jobs (id, owner, status, record) VALUES (?1, ?2, ?3, ?4)
              ON CONFLICT(id) DO UPDATE SET owner = excluded.owner, status = excluded.status,
                  record = excluded.record
@@ -106,10 +111,22 @@ impl Store {
         Ok(())
     }
 
+    /// Writes a job's webhook deliveries: its whole record on the embedded backend, only that
+    /// field on the shared one (where a worker may be writing the rest).
+    pub fn save_webhook(&self, record: &JobRecord) -> Result<(), StoreError> {
+        match self.shared() {
+            Some(postgres) => postgres.save_webhook(record),
+            None => self.save(record),
+        }
+    }
+
     /// Marks a job deleted for good (its row goes at the next start, when no one can still be
     /// writing it). The commit point of a DELETE: until it is written nothing else changes.
     pub fn tombstone(&self, id: &str) -> Result<(), StoreError> {
-        self.db()
+        if let Some(postgres) = self.shared() {
+            return postgres.tombstone(id);
+        }
+        self.db()?
             .execute("UPDATE jobs SET deleted = 1 WHERE id = ?1", params![id])?;
         Ok(())
     }
@@ -117,7 +134,7 @@ impl Store {
     /// At start: drops tombstones, moves unreadable rows to the `quarantine` table (logged;
     /// the server starts without them) and returns every other record, oldest first.
     pub fn recover(&self) -> Result<Recovered, StoreError> {
-        let connection = self.db();
+        let connection = self.db()?;
         // One transaction: a backfill of many rows is one commit, not one each.
         let db = connection.unchecked_transaction()?;
         db.execute("DELETE FROM jobs WHERE deleted = 1", [])?;
@@ -176,8 +193,13 @@ impl Store {
     ) -> Result<Vec<String>, StoreError> {
         // Ids are `job_<hex>`: every one sorts before "k".
         let before = before.unwrap_or("k");
-        let reader = self
-            .reader
+        let reader = match &self.records {
+            Records::Sqlite { reader, .. } => reader,
+            Records::Postgres(postgres) => {
+                return postgres.list_ids(owner, status, before, limit);
+            }
+        };
+        let reader = reader
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner());
         let ids = match status {
@@ -205,7 +227,10 @@ impl Store {
 
     /// Whether a live or quarantined record exists for `id` (what the orphan sweep keeps).
     fn has_record(&self, id: &str) -> Result<bool, StoreError> {
-        Ok(self.db().query_row(
+        if let Some(postgres) = self.shared() {
+            return postgres.has_record(id);
+        }
+        Ok(self.db()?.query_row(
             "SELECT EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND deleted = 0)
                  OR EXISTS (SELECT 1 FROM quarantine WHERE id = ?1)",
             params![id],
@@ -301,9 +326,52 @@ impl Store {
     /// Checks that the artefact storage accepts writes and the database answers (for `/readyz`).
     pub fn check(&self) -> Result<(), StoreError> {
         self.artefacts.check()?;
-        self.db().query_row("SELECT 1", [], |_| Ok(()))?;
+        if let Some(postgres) = self.shared() {
+            return postgres.check();
+        }
+        self.db()?.query_row("SELECT 1", [], |_| Ok(()))?;
         Ok(())
     }
+}
+
+/// The data directory's SQLite database, with the listing columns and indexes added to a
+/// database written before they existed.
+fn open_sqlite(root: &Path) -> Result<Records, StoreError> {
+    let path = root.join("jobs.sqlite3");
+    let db = Connection::open(&path)?;
+    // WAL: readers never block the writer; NORMAL sync is durable across process crashes.
+    db.pragma_update(None, "journal_mode", "WAL")?;
+    db.pragma_update(None, "synchronous", "NORMAL")?;
+    db.execute_batch(
+        "CREATE TABLE IF NOT EXISTS jobs (id TEXT PRIMARY KEY, record TEXT NOT NULL);
+         CREATE TABLE IF NOT EXISTS quarantine (
+             id TEXT PRIMARY KEY, record TEXT NOT NULL, reason TEXT NOT NULL, at INTEGER NOT NULL
+         );",
+    )?;
+    let columns: Vec<String> = db
+        .prepare("SELECT name FROM pragma_table_info('jobs')")?
+        .query_map([], |row| row.get(0))?
+        .collect::<Result<_, _>>()?;
+    for (column, kind) in [
+        ("owner", "TEXT"),
+        ("status", "TEXT"),
+        ("deleted", "INTEGER NOT NULL DEFAULT 0"),
+    ] {
+        if !columns.iter().any(|name| name == column) {
+            db.execute_batch(&format!("ALTER TABLE jobs ADD COLUMN {column} {kind}"))?;
+        }
+    }
+    db.execute_batch(
+        "CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs (owner, id);
+         CREATE INDEX IF NOT EXISTS jobs_by_owner_status ON jobs (owner, status, id);",
+    )?;
+    // Listing reads on its own connection, so a page never waits for a worker's write
+    // (rusqlite's connections wait up to 5 s for a lock held by the other).
+    let reader = Connection::open(&path)?;
+    Ok(Records::Sqlite {
+        db: Mutex::new(db),
+        reader: Mutex::new(reader),
+    })
 }
 
 /// A stored record, if it parses and is the record of the row it is in.

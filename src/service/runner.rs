@@ -1,0 +1,348 @@
+//! Running one job: decoding its stored inputs, the pipeline in the job's own thread pool,
+//! writing its results, and what the outcome makes of its record. Shared by both backends: the
+//! embedded queue's runner threads and the PostgreSQL workers ([`super::worker`]) each take a
+//! job their own way, call [`Runner::run`], and persist the record it leaves.
+
+use std::collections::BTreeMap;
+use std::panic::AssertUnwindSafe;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use axum::body::Bytes;
+use tokio::sync::watch;
+use tracing::{info, warn};
+
+use super::error::ApiError;
+use super::model::{CancelReason, JobRecord, ProgressView, Status};
+use super::ops::Metrics;
+use super::store::{Store, StoreError, digest, retry_transient};
+use super::submit::{InputLimits, decode_inputs, input_error};
+use crate::pipeline::{self, Observer, Progress};
+use crate::render::Image;
+
+pub fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+    mutex
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// One job's live state.
+pub struct JobEntry {
+    pub id: String,
+    pub owner: Option<String>,
+    /// The current record; every change is broadcast to `/events` subscribers.
+    pub record: watch::Sender<JobRecord>,
+    cancel: AtomicBool,
+    cancel_reason: Mutex<Option<CancelReason>>,
+    pub deleted: AtomicBool,
+}
+
+impl JobEntry {
+    pub fn new(record: JobRecord) -> Arc<Self> {
+        Arc::new(Self {
+            id: record.id.clone(),
+            owner: record.owner.clone(),
+            record: watch::Sender::new(record),
+            cancel: AtomicBool::new(false),
+            cancel_reason: Mutex::new(None),
+            deleted: AtomicBool::new(false),
+        })
+    }
+
+    /// Why the pipeline was asked to stop, if it was.
+    pub fn cancel_reason(&self) -> Option<CancelReason> {
+        *lock(&self.cancel_reason)
+    }
+
+    /// Marks the job ended (see [`JobRecord::end`]).
+    pub fn end(
+        &self,
+        status: Status,
+        error: Option<&ApiError>,
+        reason: Option<CancelReason>,
+        retention: Duration,
+    ) {
+        let problem = error.map(ApiError::problem);
+        self.record
+            .send_modify(|record| record.end(status, problem, reason, retention));
+    }
+
+    pub fn snapshot(&self) -> JobRecord {
+        self.record.borrow().clone()
+    }
+
+    /// Asks a running pipeline to stop; the first reason wins.
+    pub fn request_cancel(&self, reason: CancelReason) {
+        let mut current = lock(&self.cancel_reason);
+        current.get_or_insert(reason);
+        self.cancel.store(true, Ordering::Relaxed);
+        self.record
+            .send_modify(|record| record.cancel_requested = true);
+    }
+}
+
+/// What running a job needs besides the job.
+pub struct Runner {
+    pub store: Arc<Store>,
+    pub limits: InputLimits,
+    /// [`InputLimits::decode_slots`], shared with the requests that decode submissions (see
+    /// [`super::queue::Queue::decode_slots`]).
+    pub decode_slots: Arc<tokio::sync::Semaphore>,
+    pub runtime: tokio::runtime::Handle,
+    /// Wall-clock limit of one run.
+    pub job_time_limit: Duration,
+    /// How long results are kept after a job ends.
+    pub retention: Duration,
+    pub metrics: Arc<Metrics>,
+}
+
+/// What a run left in the job's record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Settled {
+    /// Succeeded, failed or canceled: the record is final.
+    Ended,
+    /// Stopped by shutdown (or a lost lease): the record is queued again, to run later.
+    Interrupted,
+    /// The job was deleted while it ran: nothing to save.
+    Deleted,
+}
+
+impl Runner {
+    /// Runs a job marked running, and settles its record by the outcome; the caller persists it.
+    pub fn run(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) -> Settled {
+        let started = Instant::now();
+        info!("started");
+        let outcome = self.execute(entry, pool);
+        if entry.deleted.load(Ordering::SeqCst) {
+            info!("deleted while running");
+            return Settled::Deleted;
+        }
+        let label = match &outcome {
+            Outcome::Succeeded(_) => "succeeded",
+            Outcome::Failed(_) => "failed",
+            Outcome::Canceled => "canceled",
+            Outcome::Interrupted => "interrupted",
+        };
+        self.metrics.job_finished(label, started.elapsed());
+        info!(
+            outcome = label,
+            seconds = started.elapsed().as_secs_f32(),
+            "finished"
+        );
+        match outcome {
+            Outcome::Succeeded(mode) => {
+                entry.record.send_modify(|record| record.mode = Some(mode));
+                entry.end(Status::Succeeded, None, None, self.retention);
+            }
+            Outcome::Failed(error) => entry.end(
+                Status::Failed,
+                Some(&error),
+                entry.cancel_reason(),
+                self.retention,
+            ),
+            Outcome::Canceled => entry.end(
+                Status::Canceled,
+                None,
+                Some(CancelReason::User),
+                self.retention,
+            ),
+            Outcome::Interrupted => {
+                entry.record.send_modify(JobRecord::requeue);
+                return Settled::Interrupted;
+            }
+        }
+        Settled::Ended
+    }
+
+    fn execute(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) -> Outcome {
+        let record = entry.snapshot();
+        let read = |name: &str| {
+            retry_transient("reading the job's inputs", || {
+                self.store.read_artefact(&entry.id, name)
+            })
+        };
+        let inputs = (|| {
+            let missing = || ApiError::Internal("the job's input files are missing".into());
+            let image = read("input/image")
+                .map_err(ApiError::from)?
+                .ok_or_else(missing)?;
+            let albedo = if record.inputs.albedo {
+                Some(
+                    read("input/albedo")
+                        .map_err(ApiError::from)?
+                        .ok_or_else(missing)?,
+                )
+            } else {
+                None
+            };
+            let labels = if record.inputs.labels {
+                Some(
+                    read("input/labels")
+                        .map_err(ApiError::from)?
+                        .ok_or_else(missing)?,
+                )
+            } else {
+                None
+            };
+            let masks = (0..record.inputs.masks)
+                .map(|index| {
+                    Ok(Bytes::from(
+                        read(&format!("input/mask-{index}"))
+                            .map_err(ApiError::from)?
+                            .ok_or_else(missing)?,
+                    ))
+                })
+                .collect::<Result<Vec<_>, ApiError>>()?;
+            // A runner waits for its slot as long as it takes (the semaphore is never closed).
+            let _slot = self
+                .runtime
+                .block_on(Arc::clone(&self.decode_slots).acquire_owned());
+            decode_inputs(
+                &image,
+                albedo.as_deref(),
+                &masks,
+                labels.as_deref(),
+                &self.limits,
+                record.inputs.accept_truncated,
+            )
+        })();
+        let inputs = match inputs {
+            Ok(inputs) => inputs,
+            Err(error) => return Outcome::Failed(error),
+        };
+        let deadline = {
+            let (limit, entry) = (self.job_time_limit, Arc::clone(entry));
+            self.runtime.spawn(async move {
+                tokio::time::sleep(limit).await;
+                entry.request_cancel(CancelReason::Deadline);
+            })
+        };
+        let observer = JobObserver {
+            store: &self.store,
+            entry,
+        };
+        let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
+            pool.install(|| pipeline::run(&inputs, &record.params, &observer, &entry.cancel))
+        }));
+        deadline.abort();
+        match result {
+            Ok(Ok(output)) => match self.write_results(entry, &output) {
+                Ok(()) => Outcome::Succeeded(output.mode.into()),
+                Err(error) => Outcome::Failed(ApiError::from(error)),
+            },
+            Ok(Err(pipeline::Error::Canceled)) => match entry.cancel_reason() {
+                Some(CancelReason::Deadline) => {
+                    Outcome::Failed(ApiError::TimeLimit(self.job_time_limit.as_secs()))
+                }
+                Some(CancelReason::Shutdown) => Outcome::Interrupted,
+                Some(CancelReason::User) | None => Outcome::Canceled,
+            },
+            Ok(Err(pipeline::Error::Input(error))) => Outcome::Failed(input_error("inputs")(error)),
+            Ok(Err(pipeline::Error::Params(message))) => {
+                Outcome::Failed(ApiError::InvalidParams(message))
+            }
+            Ok(Err(pipeline::Error::Internal(message))) => {
+                warn!(job_id = %entry.id, "internal error in the pipeline: {message}");
+                Outcome::Failed(ApiError::Internal(message))
+            }
+            Err(panic) => {
+                let message = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "panic".into());
+                Outcome::Failed(ApiError::PipelineCrashed(message))
+            }
+        }
+    }
+
+    /// The run's files, in [`pipeline::Output::artefacts`] order (`result.svg` last), with
+    /// their digests in the record (saved when the job is marked succeeded).
+    fn write_results(&self, entry: &JobEntry, output: &pipeline::Output) -> Result<(), StoreError> {
+        let mut checksums = BTreeMap::new();
+        for artefact in output.artefacts() {
+            let name = artefact.kind.name();
+            retry_transient("writing the results", || {
+                self.store.write_artefact(&entry.id, &name, &artefact.bytes)
+            })?;
+            checksums.insert(name, digest(&artefact.bytes));
+        }
+        entry
+            .record
+            .send_modify(|record| record.checksums = checksums);
+        Ok(())
+    }
+}
+
+enum Outcome {
+    Succeeded(pipeline::Mode),
+    Failed(ApiError),
+    Canceled,
+    /// Stopped by shutdown; runs again after restart.
+    Interrupted,
+}
+
+/// The thread pool one job slot runs its pipelines in (`covec-pipeline-<slot>-<n>`).
+pub fn job_pool(
+    slot: usize,
+    threads: usize,
+) -> Result<rayon::ThreadPool, rayon::ThreadPoolBuildError> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.max(1))
+        .thread_name(move |thread| format!("covec-pipeline-{slot}-{thread}"))
+        .start_handler(|_| lower_thread_priority())
+        .build()
+}
+
+/// Pipeline threads run at nice 10, so the HTTP threads win the CPU whenever both want it and
+/// polls stay fast while every core is busy with jobs. (On Linux `setpriority` with `who = 0`
+/// applies to the calling thread only.) Best effort: failure leaves the default priority.
+fn lower_thread_priority() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: plain syscall on the current thread; no memory is shared.
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, 0, PIPELINE_NICE);
+    }
+}
+
+#[cfg(target_os = "linux")]
+const PIPELINE_NICE: libc::c_int = 10;
+
+/// Turns pipeline callbacks into job progress and stored previews.
+struct JobObserver<'a> {
+    store: &'a Store,
+    entry: &'a JobEntry,
+}
+
+impl Observer for JobObserver<'_> {
+    fn progress(&self, progress: &Progress) {
+        let view = ProgressView::from(progress);
+        self.entry
+            .record
+            .send_modify(|record| record.progress = Some(view));
+    }
+
+    fn preview(&self, name: &str, image: &Image) {
+        let safe = !name.is_empty()
+            && name
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_');
+        if !safe {
+            warn!(name, "preview with an unusable name skipped");
+            return;
+        }
+        let png = crate::imageio::encode_png(image);
+        match self
+            .store
+            .write_artefact(&self.entry.id, &format!("previews/{name}.png"), &png)
+        {
+            Ok(()) => self.entry.record.send_modify(|record| {
+                if !record.previews.iter().any(|existing| existing == name) {
+                    record.previews.push(name.to_owned());
+                }
+            }),
+            Err(error) => warn!(name, "storing a preview: {error}"),
+        }
+    }
+}

@@ -1,0 +1,637 @@
+//! Job records, the queue and its leases in PostgreSQL (`--database-url`, issue 14), shared by
+//! API replicas (`covec serve`) and workers (`covec worker`).
+//!
+//! The queue is the `jobs` table: a worker claims the oldest queued row with
+//! `FOR UPDATE SKIP LOCKED` (two workers never take one job), holding it by a lease it renews
+//! while it runs; every write of a running job is fenced by the lease's token, so a worker
+//! whose lease expired can no longer save anything, and a job never ends twice. Leases that
+//! expire (a worker killed) are reaped: the job is queued again, or failed after
+//! [`MAX_ATTEMPTS`] runs. Idempotency keys are a unique index, so they hold across replicas.
+//!
+//! tokio-postgres with a deadpool pool rather than sqlx: plain SQL strings checked by the
+//! tests against a real server, no macros and no database or offline query cache at build
+//! time, and a small dependency tree. Like [`super::artefacts`]'s bucket, the client runs on
+//! a small runtime of its own: every caller is blocking code (a runner, a `spawn_blocking`
+//! task, start-up), which hands each request over and waits for it.
+//!
+//! Migrations are the files in `migrations/`, applied in order at start (under an advisory
+//! lock, so replicas starting together apply each once) and recorded in `schema_migrations`.
+
+use std::str::FromStr;
+use std::time::{Duration, SystemTime};
+
+use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
+use tokio_postgres::{NoTls, Row};
+
+use super::error::StoreError;
+use super::parse_record;
+use crate::service::error::Problem;
+use crate::service::model::{JobRecord, Status};
+
+/// The schema, version by version; a version once released is never edited.
+const MIGRATIONS: [(i32, &str); 1] = [(1, include_str!("../../../migrations/0001_jobs.sql"))];
+
+/// Runs of one job, the first included, before a job whose worker keeps vanishing is failed
+/// (`workers-lost`): one lost worker is bad luck, three in a row is likely the job itself.
+pub const MAX_ATTEMPTS: i32 = 3;
+
+/// Connections per process: a handful of short statements at a time.
+const POOL_SIZE: usize = 8;
+
+/// How long a request waits for a connection (also to open one), so a database that is down
+/// gives an error in seconds instead of a hang.
+const CONNECT_WAIT: Duration = Duration::from_secs(10);
+
+/// The columns a record is read from; [`record_of`] parses them.
+const RECORD_COLUMNS: &str = "id, record::text, status, cancel_requested, attempts";
+
+/// Every full write of a record keeps the webhook deliveries stored: the API replica that
+/// delivers them writes only that field ([`Postgres::save_webhook`]).
+const KEEP_WEBHOOK: &str = "|| jsonb_build_object('webhook', jobs.record -> 'webhook')";
+
+pub struct Postgres {
+    pool: Pool,
+    /// Taken out and shut down in the background on drop (as the object store's).
+    runtime: Option<tokio::runtime::Runtime>,
+}
+
+impl Drop for Postgres {
+    fn drop(&mut self) {
+        if let Some(runtime) = self.runtime.take() {
+            runtime.shutdown_background();
+        }
+    }
+}
+
+/// What inserting a submitted job did.
+pub enum Inserted {
+    Created,
+    /// A live job holds this (owner, Idempotency-Key): its record.
+    Existing(Box<JobRecord>),
+    /// The queue holds this many jobs already.
+    Full(usize),
+}
+
+/// What asking a job to cancel did.
+pub enum Canceled {
+    /// It was queued and is now canceled.
+    Ended,
+    /// It is running: its worker stops it at its next heartbeat.
+    Stopping,
+    /// It had ended already (or is gone).
+    Nothing,
+}
+
+/// What a running job's heartbeat learned.
+pub enum Beat {
+    /// The lease is renewed; whether a cancel was asked for.
+    Held { cancel: bool },
+    /// The job was deleted: stop and remove its files.
+    Deleted,
+    /// Another worker holds the job now (this lease expired): stop and save nothing.
+    Lost,
+}
+
+/// A claimed job: its record (marked running) and the lease's token.
+pub struct Claim {
+    pub record: JobRecord,
+    pub token: String,
+}
+
+/// A change to a job since the last look ([`Postgres::changes`]).
+pub enum Change {
+    Live(Box<JobRecord>),
+    Deleted(String),
+}
+
+impl Postgres {
+    /// Connects (checking the server answers) and applies pending migrations.
+    pub fn connect(url: &str) -> Result<Self, StoreError> {
+        let config = tokio_postgres::Config::from_str(url).map_err(|error| {
+            StoreError::DatabaseUrl(format!("not a PostgreSQL connection string: {error}"))
+        })?;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("covec-postgres")
+            .enable_all()
+            .build()
+            .map_err(|error| StoreError::DatabaseUrl(format!("runtime: {error}")))?;
+        let manager = Manager::from_config(
+            config,
+            NoTls,
+            ManagerConfig {
+                recycling_method: RecyclingMethod::Fast,
+            },
+        );
+        let pool = Pool::builder(manager)
+            .max_size(POOL_SIZE)
+            .runtime(deadpool_postgres::Runtime::Tokio1)
+            .wait_timeout(Some(CONNECT_WAIT))
+            .create_timeout(Some(CONNECT_WAIT))
+            .build()
+            .map_err(|error| StoreError::DatabaseUrl(error.to_string()))?;
+        let postgres = Self {
+            pool,
+            runtime: Some(runtime),
+        };
+        postgres.migrate()?;
+        Ok(postgres)
+    }
+
+    /// Runs `request` with a pooled connection on the client's runtime and waits for it.
+    fn run<T: Send + 'static, F>(
+        &self,
+        request: impl FnOnce(deadpool_postgres::Object) -> F + Send + 'static,
+    ) -> Result<T, StoreError>
+    where
+        F: Future<Output = Result<T, StoreError>> + Send,
+    {
+        let runtime = self.runtime.as_ref().expect("the runtime lives until drop");
+        let pool = self.pool.clone();
+        let (answer, answered) = std::sync::mpsc::channel();
+        runtime.spawn(async move {
+            let result = match pool.get().await {
+                Ok(client) => request(client).await,
+                Err(error) => Err(StoreError::DatabasePool(error.to_string())),
+            };
+            let _ = answer.send(result);
+        });
+        answered.recv().map_err(|_| StoreError::DatabaseStopped)?
+    }
+
+    fn migrate(&self) -> Result<(), StoreError> {
+        self.run(|mut client| async move {
+            let transaction = client.transaction().await?;
+            // One replica at a time; the others then find the versions applied.
+            transaction
+                .execute("SELECT pg_advisory_xact_lock(7316290414)", &[])
+                .await?;
+            transaction
+                .batch_execute(
+                    "CREATE TABLE IF NOT EXISTS schema_migrations (
+                         version integer PRIMARY KEY,
+                         applied_at timestamptz NOT NULL DEFAULT now()
+                     )",
+                )
+                .await?;
+            for (version, sql) in MIGRATIONS {
+                let applied = transaction
+                    .query_opt(
+                        "SELECT 1 FROM schema_migrations WHERE version = $1",
+                        &[&version],
+                    )
+                    .await?
+                    .is_some();
+                if !applied {
+                    tracing::info!(version, "applying database migration");
+                    transaction.batch_execute(sql).await?;
+                    transaction
+                        .execute(
+                            "INSERT INTO schema_migrations (version) VALUES ($1)",
+                            &[&version],
+                        )
+                        .await?;
+                }
+            }
+            transaction.commit().await?;
+            Ok(())
+        })
+    }
+
+    /// Inserts a queued job unless the queue holds `max_queued` jobs or a live job has its
+    /// Idempotency-Key (then that job's record).
+    pub fn insert(&self, record: &JobRecord, max_queued: usize) -> Result<Inserted, StoreError> {
+        let json = to_json(record);
+        let (id, owner) = (record.id.clone(), record.owner.clone());
+        let key = record.idempotency.as_ref().map(|i| i.key.clone());
+        self.run(move |client| async move {
+            // The earlier job, looked for first: a replay is answered even when the queue is full.
+            if let Some(existing) = by_key(&client, &owner, &key).await? {
+                return Ok(Inserted::Existing(Box::new(existing)));
+            }
+            let queued: i64 = client
+                .query_one(
+                    "SELECT count(*) FROM jobs WHERE status = 'queued' AND NOT deleted",
+                    &[],
+                )
+                .await?
+                .get(0);
+            if queued as usize >= max_queued {
+                return Ok(Inserted::Full(queued as usize));
+            }
+            let inserted = client
+                .execute(
+                    "INSERT INTO jobs (id, owner, status, record, idempotency_key)
+                     VALUES ($1, $2, 'queued', $3::text::jsonb, $4) ON CONFLICT DO NOTHING",
+                    &[&id, &owner, &json, &key],
+                )
+                .await?;
+            if inserted == 1 {
+                return Ok(Inserted::Created);
+            }
+            // Another replica inserted the same key meanwhile.
+            match by_key(&client, &owner, &key).await? {
+                Some(existing) => Ok(Inserted::Existing(Box::new(existing))),
+                None => Err(StoreError::CorruptRecord {
+                    id,
+                    reason: "its insert conflicted with no live job".into(),
+                }),
+            }
+        })
+    }
+
+    /// The live job `id`.
+    pub fn get(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
+        let id = id.to_owned();
+        self.run(move |client| async move {
+            let row = client
+                .query_opt(
+                    &format!("SELECT {RECORD_COLUMNS} FROM jobs WHERE id = $1 AND NOT deleted"),
+                    &[&id],
+                )
+                .await?;
+            row.as_ref().map(record_of).transpose()
+        })
+    }
+
+    /// Every job changed after `since` (all live jobs when `None`), and the mark to pass next
+    /// time. The mark trails the database clock by a margin, so a change committed just after
+    /// a statement that began earlier is still seen; a change may come twice.
+    pub fn changes(
+        &self,
+        since: Option<SystemTime>,
+    ) -> Result<(Vec<Change>, SystemTime), StoreError> {
+        self.run(move |client| async move {
+            let mark: SystemTime = client
+                .query_one("SELECT clock_timestamp() - interval '5 seconds'", &[])
+                .await?
+                .get(0);
+            let rows = match since {
+                Some(since) => {
+                    client
+                        .query(
+                            &format!(
+                                "SELECT {RECORD_COLUMNS}, deleted FROM jobs WHERE updated_at > $1
+                                 ORDER BY updated_at"
+                            ),
+                            &[&since],
+                        )
+                        .await?
+                }
+                None => {
+                    client
+                        .query(
+                            &format!(
+                                "SELECT {RECORD_COLUMNS}, deleted FROM jobs WHERE NOT deleted
+                                 ORDER BY id"
+                            ),
+                            &[],
+                        )
+                        .await?
+                }
+            };
+            let mut changes = Vec::with_capacity(rows.len());
+            for row in &rows {
+                if row.get::<_, bool>(5) {
+                    changes.push(Change::Deleted(row.get(0)));
+                    continue;
+                }
+                match record_of(row) {
+                    Ok(record) => changes.push(Change::Live(Box::new(record))),
+                    // Left out (and logged), as the embedded store's quarantine does.
+                    Err(error) => tracing::error!(%error, "unreadable job record skipped"),
+                }
+            }
+            Ok((changes, mark))
+        })
+    }
+
+    /// (queued, running) jobs.
+    pub fn depth(&self) -> Result<(usize, usize), StoreError> {
+        self.run(|client| async move {
+            let row = client
+                .query_one(
+                    "SELECT count(*) FILTER (WHERE status = 'queued'),
+                            count(*) FILTER (WHERE status = 'running')
+                     FROM jobs WHERE status IN ('queued', 'running') AND NOT deleted",
+                    &[],
+                )
+                .await?;
+            Ok((row.get::<_, i64>(0) as usize, row.get::<_, i64>(1) as usize))
+        })
+    }
+
+    /// Up to `limit` ids of `owner`'s live jobs (with `status` if given) strictly older than
+    /// `before`, newest first; one index range scan.
+    pub fn list_ids(
+        &self,
+        owner: &Option<String>,
+        status: Option<Status>,
+        before: &str,
+        limit: usize,
+    ) -> Result<Vec<String>, StoreError> {
+        let (owner, before) = (owner.clone().unwrap_or_default(), before.to_owned());
+        self.run(move |client| async move {
+            let limit = limit as i64;
+            let rows = match status {
+                Some(status) => {
+                    client
+                        .query(
+                            "SELECT id FROM jobs WHERE coalesce(owner, '') = $1 AND status = $2
+                                 AND id < $3 AND NOT deleted ORDER BY id DESC LIMIT $4",
+                            &[&owner, &status.name(), &before, &limit],
+                        )
+                        .await?
+                }
+                None => {
+                    client
+                        .query(
+                            "SELECT id FROM jobs WHERE coalesce(owner, '') = $1 AND id < $2
+                                 AND NOT deleted ORDER BY id DESC LIMIT $3",
+                            &[&owner, &before, &limit],
+                        )
+                        .await?
+                }
+            };
+            Ok(rows.iter().map(|row| row.get(0)).collect())
+        })
+    }
+
+    /// Whether a live job `id` exists (what the orphan sweep keeps).
+    pub fn has_record(&self, id: &str) -> Result<bool, StoreError> {
+        Ok(self.get(id)?.is_some())
+    }
+
+    /// Cancels a queued job (its record becomes `ended`), or asks the worker running it to stop.
+    pub fn cancel(&self, ended: &JobRecord) -> Result<Canceled, StoreError> {
+        let (id, json) = (ended.id.clone(), to_json(ended));
+        self.run(move |client| async move {
+            let canceled = client
+                .execute(
+                    &format!(
+                        "UPDATE jobs SET status = 'canceled', record = $2::text::jsonb {KEEP_WEBHOOK}
+                         WHERE id = $1 AND status = 'queued' AND NOT deleted"
+                    ),
+                    &[&id, &json],
+                )
+                .await?;
+            if canceled == 1 {
+                return Ok(Canceled::Ended);
+            }
+            let asked = client
+                .execute(
+                    "UPDATE jobs SET cancel_requested = true
+                     WHERE id = $1 AND status = 'running' AND NOT deleted",
+                    &[&id],
+                )
+                .await?;
+            Ok(if asked == 1 {
+                Canceled::Stopping
+            } else {
+                Canceled::Nothing
+            })
+        })
+    }
+
+    /// Marks a job deleted for good: the commit point of a DELETE. Its worker, if it runs,
+    /// learns it at its next heartbeat; the row goes in [`Postgres::purge_tombstones`].
+    pub fn tombstone(&self, id: &str) -> Result<(), StoreError> {
+        let id = id.to_owned();
+        self.run(move |client| async move {
+            client
+                .execute("UPDATE jobs SET deleted = true WHERE id = $1", &[&id])
+                .await?;
+            Ok(())
+        })
+    }
+
+    /// Removes the rows of jobs deleted more than `age` ago (long after any worker saw it).
+    pub fn purge_tombstones(&self, age: Duration) -> Result<u64, StoreError> {
+        self.run(move |client| async move {
+            Ok(client
+                .execute(
+                    "DELETE FROM jobs WHERE deleted
+                     AND updated_at < clock_timestamp() - make_interval(secs => $1)",
+                    &[&age.as_secs_f64()],
+                )
+                .await?)
+        })
+    }
+
+    /// Writes the record of a job no worker holds (a queued or ended one), keeping its stored
+    /// webhook deliveries.
+    pub fn save_idle(&self, record: &JobRecord) -> Result<(), StoreError> {
+        let (id, json) = (record.id.clone(), to_json(record));
+        self.run(move |client| async move {
+            client
+                .execute(
+                    &format!(
+                        "UPDATE jobs SET record = $2::text::jsonb {KEEP_WEBHOOK}
+                         WHERE id = $1 AND lease_owner IS NULL AND NOT deleted"
+                    ),
+                    &[&id, &json],
+                )
+                .await?;
+            Ok(())
+        })
+    }
+
+    /// Stores a job's webhook deliveries (the one field its delivering replica writes).
+    pub fn save_webhook(&self, record: &JobRecord) -> Result<(), StoreError> {
+        let id = record.id.clone();
+        let json = serde_json::to_string(&record.webhook).expect("a webhook always serialises");
+        self.run(move |client| async move {
+            client
+                .execute(
+                    "UPDATE jobs SET record = jsonb_set(record, '{webhook}', $2::text::jsonb)
+                     WHERE id = $1 AND NOT deleted",
+                    &[&id, &json],
+                )
+                .await?;
+            Ok(())
+        })
+    }
+
+    /// Takes the oldest queued job, if any, with a lease of `lease` under a new token; its
+    /// record comes back marked running (started now), one attempt more.
+    pub fn claim(&self, lease: Duration) -> Result<Option<Claim>, StoreError> {
+        let token = uuid::Uuid::now_v7().simple().to_string();
+        self.run(move |client| async move {
+            let row = client
+                .query_opt(
+                    &format!(
+                        "UPDATE jobs SET status = 'running', attempts = attempts + 1,
+                             cancel_requested = false, lease_owner = $1,
+                             lease_expires_at = clock_timestamp() + make_interval(secs => $2)
+                         WHERE id = (
+                             SELECT id FROM jobs WHERE status = 'queued' AND NOT deleted
+                             ORDER BY id LIMIT 1 FOR UPDATE SKIP LOCKED
+                         )
+                         RETURNING {RECORD_COLUMNS}"
+                    ),
+                    &[&token, &lease.as_secs_f64()],
+                )
+                .await?;
+            let Some(row) = row else {
+                return Ok(None);
+            };
+            let mut record = record_of(&row)?;
+            record.started_at = Some(crate::service::model::now_ms());
+            Ok(Some(Claim { record, token }))
+        })
+    }
+
+    /// Renews a running job's lease for `lease`, storing its record when given (progress,
+    /// previews), and says whether to go on.
+    pub fn heartbeat(
+        &self,
+        token: &str,
+        lease: Duration,
+        record: Option<&JobRecord>,
+        id: &str,
+    ) -> Result<Beat, StoreError> {
+        let (id, token, json) = (id.to_owned(), token.to_owned(), record.map(to_json));
+        self.run(move |client| async move {
+            let row = client
+                .query_opt(
+                    &format!(
+                        "UPDATE jobs SET
+                             lease_expires_at = clock_timestamp() + make_interval(secs => $3),
+                             record = coalesce($4::text::jsonb {KEEP_WEBHOOK}, jobs.record)
+                         WHERE id = $1 AND lease_owner = $2 AND status = 'running' AND NOT deleted
+                         RETURNING cancel_requested"
+                    ),
+                    &[&id, &token, &lease.as_secs_f64(), &json],
+                )
+                .await?;
+            if let Some(row) = row {
+                return Ok(Beat::Held { cancel: row.get(0) });
+            }
+            let deleted = client
+                .query_opt("SELECT deleted FROM jobs WHERE id = $1", &[&id])
+                .await?
+                .is_none_or(|row| row.get(0));
+            Ok(if deleted { Beat::Deleted } else { Beat::Lost })
+        })
+    }
+
+    /// Saves the record a run left, if the lease is still `token`'s, and releases the job:
+    /// ended, or queued again (`requeued`, stopped by shutdown: that attempt does not count).
+    /// Returns whether it was saved.
+    pub fn settle(&self, token: &str, record: &JobRecord) -> Result<bool, StoreError> {
+        let (id, token, json) = (record.id.clone(), token.to_owned(), to_json(record));
+        let status = record.status.name();
+        let refund: i32 = (record.status == Status::Queued).into();
+        self.run(move |client| async move {
+            let saved = client
+                .execute(
+                    &format!(
+                        "UPDATE jobs SET status = $3, record = $4::text::jsonb {KEEP_WEBHOOK},
+                             attempts = attempts - $5, cancel_requested = false,
+                             lease_owner = NULL, lease_expires_at = NULL
+                         WHERE id = $1 AND lease_owner = $2 AND NOT deleted"
+                    ),
+                    &[&id, &token, &status, &json, &refund],
+                )
+                .await?;
+            Ok(saved == 1)
+        })
+    }
+
+    /// Takes back the jobs whose lease expired (their worker stopped without a word): each is
+    /// queued again, or failed with `lost` once it has had [`MAX_ATTEMPTS`] runs. Returns
+    /// (requeued, failed).
+    pub fn reap(&self, lost: Problem, retention: Duration) -> Result<(usize, usize), StoreError> {
+        self.run(move |mut client| async move {
+            let transaction = client.transaction().await?;
+            let rows = transaction
+                .query(
+                    &format!(
+                        "SELECT {RECORD_COLUMNS} FROM jobs WHERE status = 'running'
+                             AND lease_expires_at < clock_timestamp() AND NOT deleted
+                         FOR UPDATE SKIP LOCKED"
+                    ),
+                    &[],
+                )
+                .await?;
+            let (mut requeued, mut failed) = (0, 0);
+            for row in &rows {
+                let mut record = record_of(row)?;
+                if record.attempts as i32 >= MAX_ATTEMPTS {
+                    record.end(Status::Failed, Some(lost.clone()), None, retention);
+                    failed += 1;
+                } else {
+                    record.requeue();
+                    requeued += 1;
+                }
+                tracing::warn!(
+                    job_id = %record.id,
+                    attempts = record.attempts,
+                    status = record.status.name(),
+                    "a worker's lease expired"
+                );
+                transaction
+                    .execute(
+                        &format!(
+                            "UPDATE jobs SET status = $2, record = $3::text::jsonb {KEEP_WEBHOOK},
+                                 cancel_requested = false, lease_owner = NULL,
+                                 lease_expires_at = NULL
+                             WHERE id = $1"
+                        ),
+                        &[&record.id, &record.status.name(), &to_json(&record)],
+                    )
+                    .await?;
+            }
+            transaction.commit().await?;
+            Ok((requeued, failed))
+        })
+    }
+
+    /// Checks that the database answers (for `/readyz`).
+    pub fn check(&self) -> Result<(), StoreError> {
+        self.run(|client| async move {
+            client.query_one("SELECT 1", &[]).await?;
+            Ok(())
+        })
+    }
+}
+
+/// The live job holding `owner`'s Idempotency-Key `key`, if any.
+async fn by_key(
+    client: &deadpool_postgres::Object,
+    owner: &Option<String>,
+    key: &Option<String>,
+) -> Result<Option<JobRecord>, StoreError> {
+    let Some(key) = key else {
+        return Ok(None);
+    };
+    let owner = owner.clone().unwrap_or_default();
+    let row = client
+        .query_opt(
+            &format!(
+                "SELECT {RECORD_COLUMNS} FROM jobs
+                 WHERE coalesce(owner, '') = $1 AND idempotency_key = $2 AND NOT deleted"
+            ),
+            &[&owner, key],
+        )
+        .await?;
+    row.as_ref().map(record_of).transpose()
+}
+
+fn to_json(record: &JobRecord) -> String {
+    serde_json::to_string(record).expect("a job record always serialises")
+}
+
+/// A record from [`RECORD_COLUMNS`]: the JSON, with the queue's columns over it.
+fn record_of(row: &Row) -> Result<JobRecord, StoreError> {
+    let id: String = row.get(0);
+    let mut record = parse_record(&id, row.get(1))?;
+    let status: &str = row.get(2);
+    record.status = Status::from_name(status).ok_or_else(|| StoreError::CorruptRecord {
+        id: id.clone(),
+        reason: format!("unknown status `{status}`"),
+    })?;
+    record.cancel_requested |= row.get::<_, bool>(3);
+    record.attempts = row.get::<_, i32>(4).max(0) as u32;
+    Ok(record)
+}

@@ -1,0 +1,209 @@
+//! A throwaway PostgreSQL for the shared-backend tests: `initdb` in a temporary directory and
+//! `postgres` on a free loopback port, stopped and removed on drop. The server binaries come
+//! from Debian's `postgresql` package (scripts/setup-postgres.sh installs it); as root they
+//! run as the `postgres` user (through `setpriv`), since PostgreSQL refuses to run as root.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use super::DataDir;
+
+pub struct Postgres {
+    child: Child,
+    /// `postgres://…` for `--database-url`.
+    pub url: String,
+    port: u16,
+    dir: DataDir,
+}
+
+/// The directory holding `initdb` and `postgres`: Debian's newest version, else `PATH`.
+fn bin_dir() -> Option<PathBuf> {
+    let mut versions: Vec<PathBuf> = std::fs::read_dir("/usr/lib/postgresql")
+        .ok()?
+        .filter_map(|entry| Some(entry.ok()?.path().join("bin")))
+        .filter(|bin| bin.join("initdb").exists())
+        .collect();
+    versions.sort();
+    versions.pop()
+}
+
+/// A command for a PostgreSQL binary, as the `postgres` user when this process is root.
+fn command(program: &str) -> Command {
+    let program = bin_dir().map_or_else(|| PathBuf::from(program), |bin| bin.join(program));
+    // SAFETY: a plain syscall with no arguments.
+    if unsafe { libc::geteuid() } == 0 {
+        // setpriv execs the program itself: the child is the server, and signals reach it.
+        let mut command = Command::new("setpriv");
+        command
+            .args(["--reuid=postgres", "--regid=postgres", "--init-groups"])
+            .arg(program);
+        command
+    } else {
+        Command::new(program)
+    }
+}
+
+fn chown_to_postgres(path: &Path) {
+    // SAFETY: as in `command`.
+    if unsafe { libc::geteuid() } == 0 {
+        let status = Command::new("chown")
+            .args(["-R", "postgres"])
+            .arg(path)
+            .status()
+            .unwrap();
+        assert!(status.success(), "chown {}", path.display());
+    }
+}
+
+impl Postgres {
+    pub fn start() -> Self {
+        let dir = DataDir::plain("postgres");
+        chown_to_postgres(&dir.0);
+        let data = dir.0.join("data");
+        let initdb = command("initdb")
+            .arg("-D")
+            .arg(&data)
+            .args(["-U", "covec", "--auth=trust", "-E", "UTF8", "--no-sync"])
+            .stdout(Stdio::null())
+            .output()
+            .expect("initdb (scripts/setup-postgres.sh installs PostgreSQL)");
+        assert!(
+            initdb.status.success(),
+            "initdb: {}",
+            String::from_utf8_lossy(&initdb.stderr)
+        );
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let postgres = Self {
+            child: spawn_server(&dir.0, port),
+            url: format!("postgres://covec@127.0.0.1:{port}/postgres"),
+            port,
+            dir,
+        };
+        postgres.wait_ready();
+        postgres
+    }
+
+    /// Stops the server (fast shutdown: connections are cut) and starts it again on the same
+    /// port and data; returns once it accepts connections.
+    pub fn restart(&mut self) {
+        self.stop();
+        self.child = spawn_server(&self.dir.0, self.port);
+        self.wait_ready();
+    }
+
+    fn stop(&mut self) {
+        // SIGINT: PostgreSQL's fast shutdown.
+        // SAFETY: a signal to our own child.
+        unsafe {
+            libc::kill(self.child.id() as i32, libc::SIGINT);
+        }
+        let started = Instant::now();
+        while started.elapsed() < Duration::from_secs(10) {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    fn wait_ready(&self) {
+        let started = Instant::now();
+        loop {
+            let ready = Command::new("pg_isready")
+                .args(["-q", "-h", "127.0.0.1", "-p", &self.port.to_string()])
+                .status()
+                .is_ok_and(|status| status.success());
+            if ready {
+                return;
+            }
+            assert!(
+                started.elapsed() < Duration::from_secs(30),
+                "postgres did not start"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    /// One SQL statement through `psql`; its rows, one per line, columns `|`-separated.
+    pub fn query(&self, sql: &str) -> String {
+        let output = Command::new("psql")
+            .args([&self.url, "-XAtq", "-c", sql])
+            .output()
+            .expect("psql");
+        assert!(
+            output.status.success(),
+            "{sql}: {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        String::from_utf8(output.stdout).unwrap()
+    }
+}
+
+impl Drop for Postgres {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+/// `postgres` on `port` for the cluster in `dir/data`, logging to `dir/postgres.log`.
+fn spawn_server(dir: &Path, port: u16) -> Child {
+    let log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(dir.join("postgres.log"))
+        .unwrap();
+    command("postgres")
+        .arg("-D")
+        .arg(dir.join("data"))
+        .args(["-p", &port.to_string(), "-h", "127.0.0.1", "-k"])
+        .arg(dir)
+        // A test database: speed over durability.
+        .args(["-c", "fsync=off", "-c", "synchronous_commit=off"])
+        .args(["-c", "full_page_writes=off"])
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .expect("postgres")
+}
+
+/// A `covec worker` process, killed on drop.
+pub struct Worker {
+    child: Child,
+}
+
+impl Worker {
+    /// Starts `covec worker --data-dir DIR ARGS…`, logging to `log_path`.
+    pub fn start(data_dir: &Path, log_path: &Path, args: &[&str]) -> Self {
+        let log = std::fs::File::create(log_path).unwrap();
+        let child = Command::new(env!("CARGO_BIN_EXE_covec"))
+            .args(["worker", "--data-dir"])
+            .arg(data_dir)
+            .args(args)
+            .env("COVEC_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .expect("start covec worker");
+        Self { child }
+    }
+
+    /// SIGKILL: the worker dies at once, mid-job, leaving its lease to expire.
+    pub fn kill(mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
