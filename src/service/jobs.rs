@@ -6,11 +6,10 @@ use std::time::Duration;
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, Request, State};
-use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
+use axum::http::{HeaderMap, HeaderName, HeaderValue, Method, StatusCode, header};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
-use futures_util::Stream;
 use serde::Deserialize;
 
 use super::auth::Owner;
@@ -359,13 +358,15 @@ async fn delete(
 const EVENT_INTERVAL: Duration = Duration::from_millis(100);
 
 /// Server-Sent Events: `progress` events while the job is queued or running, then one
-/// `completed` event with the final job, then the stream ends.
+/// `completed` event with the final job, then the stream ends. `X-Accel-Buffering: no` asks a
+/// proxy in front (nginx, ingress-nginx) to pass events as they come rather than buffer the
+/// stream until the job ends, and `Cache-Control: no-cache` keeps caches from storing it.
 async fn events(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
     headers: HeaderMap,
-) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
+) -> Result<impl IntoResponse, ApiError> {
     let entry = find(&state, &owner, &id)?;
     let receiver = entry.record.subscribe();
     let shutdown = state.shutdown.subscribe();
@@ -425,11 +426,20 @@ async fn events(
                     seen: None,
                     done: terminal,
                 };
-                return Some((Ok(event), (receiver, shutdown, state, next)));
+                return Some((
+                    Ok::<_, Infallible>(event),
+                    (receiver, shutdown, state, next),
+                ));
             }
         },
     );
-    Ok(Sse::new(stream).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))))
+    Ok((
+        [
+            (header::CACHE_CONTROL, "no-cache"),
+            (HeaderName::from_static("x-accel-buffering"), "no"),
+        ],
+        Sse::new(stream).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))),
+    ))
 }
 
 const LAST_EVENT_ID: &str = "last-event-id";

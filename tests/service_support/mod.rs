@@ -322,6 +322,9 @@ impl Server {
                 .unwrap()
                 .starts_with("text/event-stream")
         );
+        // Unbuffered through a proxy (nginx honours the header), uncached.
+        assert_eq!(response.headers()["x-accel-buffering"], "no");
+        assert_eq!(response.headers()["cache-control"], "no-cache");
         let body = tokio::time::timeout(timeout, response.into_body().collect())
             .await
             .expect("the event stream ends")
