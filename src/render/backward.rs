@@ -14,7 +14,7 @@
 
 use super::flatten::FlatScene;
 use super::raster::{self, RowSpan};
-use super::{Image, PathGrad, STRIP_ROWS, StripCoverage, meets_strip, strip_rows};
+use super::{Backdrop, Image, PathGrad, STRIP_ROWS, StripCoverage, meets_strip, strip_rows};
 use crate::scene::Path;
 
 /// Target size of one pass's signed-area buffer: small enough to stay in a core's L2 cache.
@@ -132,7 +132,7 @@ impl Totals {
 pub(super) struct Band<'a> {
     pub flat: &'a FlatScene<f32>,
     pub paths: &'a [Path],
-    pub base: [f32; 3],
+    pub backdrop: Backdrop<'a>,
     pub d_out: &'a Image,
     pub band: usize,
     pub rows_per_pass: usize,
@@ -227,9 +227,7 @@ impl Band<'_> {
         ws.row_color.resize(width * 3, 0.0);
         ws.row_grad.resize(width * 3, 0.0);
         for r in 0..rows {
-            for (plane, &v) in ws.row_color.chunks_exact_mut(width).zip(&self.base) {
-                plane.fill(v);
-            }
+            self.fill_backdrop(row0 + r, &mut ws.row_color);
             let mut below_len = 0;
             for (k, &slot) in ws.active.iter().enumerate() {
                 let span = ws.spans[k * rows + r];
@@ -315,6 +313,30 @@ impl Band<'_> {
                 &mut out.verts[start..start + fp.verts.len()],
                 lookup,
             );
+        }
+    }
+}
+
+impl Band<'_> {
+    /// Row `y` of the backdrop as channel planes (R…, G…, B…) in `planes`.
+    fn fill_backdrop(&self, y: usize, planes: &mut [f32]) {
+        let width = self.d_out.width;
+        match self.backdrop {
+            Backdrop::Color(color) => {
+                for (plane, &v) in planes.chunks_exact_mut(width).zip(&color) {
+                    plane.fill(v);
+                }
+            }
+            Backdrop::Image(image) => {
+                let row = &image.data[3 * y * width..3 * (y + 1) * width];
+                let (r, rest) = planes.split_at_mut(width);
+                let (g, b) = rest.split_at_mut(width);
+                for (x, px) in row.chunks_exact(3).enumerate() {
+                    r[x] = px[0];
+                    g[x] = px[1];
+                    b[x] = px[2];
+                }
+            }
         }
     }
 }

@@ -2,7 +2,8 @@
 //!
 //! Contract (other modules code against exactly this):
 //! - [`Image`]: f32 RGB, row-major, interleaved (`data[3 * (y * width + x) + c]`).
-//! - [`Rasterizer::render`] paints `paths` back to front with "over" onto a `base` colour;
+//! - [`Rasterizer::render`] paints `paths` back to front with "over" onto a `base` colour
+//!   ([`Rasterizer::render_over`]: onto a [`Backdrop`] colour or image);
 //!   each path's alpha at a pixel is its exact area coverage × opacity. Non-zero fill.
 //! - [`Rasterizer::backward`] takes dLoss/dPixel for that same render and **adds** dLoss/d(points,
 //!   colour, opacity) into `grads` (one [`PathGrad`] per path, same shapes as the paths).
@@ -91,6 +92,49 @@ impl Image {
         self.width = width;
         self.height = height;
         self.data.resize(width * height * 3, 0.0);
+    }
+}
+
+/// What the paths are painted over: a flat colour or a whole image (same size as the render).
+#[derive(Clone, Copy, Debug)]
+pub enum Backdrop<'a> {
+    /// Every pixel starts as this colour.
+    Color([f32; 3]),
+    /// Every pixel starts as this image's pixel: "over" onto a cached render of frozen paths in
+    /// one pass (no gradient flows into the image).
+    Image(&'a Image),
+}
+
+impl Backdrop<'_> {
+    /// Writes the backdrop of rows `row0..row0 + rows` (interleaved RGB) into `pixels`.
+    fn fill_rows<T: Real>(&self, row0: usize, width: usize, pixels: &mut [T]) {
+        match self {
+            Backdrop::Color(color) => {
+                let color = color.map(T::from_f32);
+                for px in pixels.chunks_exact_mut(3) {
+                    px.copy_from_slice(&color);
+                }
+            }
+            Backdrop::Image(image) => {
+                let start = 3 * row0 * width;
+                let src = &image.data[start..start + pixels.len()];
+                for (dst, &v) in pixels.iter_mut().zip(src) {
+                    *dst = T::from_f32(v);
+                }
+            }
+        }
+    }
+
+    /// Panics unless an image backdrop is `width × height`.
+    fn check_size(&self, width: usize, height: usize) {
+        if let Backdrop::Image(image) = self {
+            assert!(
+                image.width == width
+                    && image.height == height
+                    && image.data.len() == width * height * 3,
+                "the backdrop must be the render's size"
+            );
+        }
     }
 }
 
@@ -231,6 +275,22 @@ impl Rasterizer {
         height: usize,
         out: &mut Image,
     ) {
+        self.render_over(paths, Backdrop::Color(base), width, height, out);
+    }
+
+    /// Renders `paths` over `backdrop` into `out`, which is resized to `width × height`.
+    ///
+    /// # Panics
+    /// If an image backdrop is not `width × height`.
+    pub fn render_over(
+        &mut self,
+        paths: &[Path],
+        backdrop: Backdrop,
+        width: usize,
+        height: usize,
+        out: &mut Image,
+    ) {
+        backdrop.check_size(width, height);
         out.resize(width, height);
         if width == 0 || height == 0 {
             return;
@@ -246,7 +306,7 @@ impl Rasterizer {
                 render_strip(
                     flat,
                     paths,
-                    base,
+                    backdrop,
                     width,
                     height,
                     s,
@@ -277,7 +337,8 @@ impl Rasterizer {
         out.par_chunks_mut(STRIP_ROWS * width * 3)
             .enumerate()
             .for_each_init(StripCoverage::<f64>::default, |coverage, (s, pixels)| {
-                render_strip(&flat, paths, base, width, height, s, pixels, coverage)
+                let backdrop = Backdrop::Color(base);
+                render_strip(&flat, paths, backdrop, width, height, s, pixels, coverage)
             });
         out
     }
@@ -295,7 +356,22 @@ impl Rasterizer {
         d_out: &Image,
         grads: &mut [PathGrad],
     ) {
+        self.backward_over(paths, Backdrop::Color(base), d_out, grads);
+    }
+
+    /// [`backward`](Self::backward) of [`render_over`](Self::render_over) with `backdrop`.
+    ///
+    /// # Panics
+    /// As [`backward`](Self::backward), and if an image backdrop is not `d_out`'s size.
+    pub fn backward_over(
+        &mut self,
+        paths: &[Path],
+        backdrop: Backdrop,
+        d_out: &Image,
+        grads: &mut [PathGrad],
+    ) {
         let (width, height) = (d_out.width, d_out.height);
+        backdrop.check_size(width, height);
         assert_eq!(
             d_out.data.len(),
             width * height * 3,
@@ -321,7 +397,7 @@ impl Rasterizer {
                 let job = backward::Band {
                     flat,
                     paths,
-                    base,
+                    backdrop,
                     d_out,
                     band,
                     rows_per_pass,
@@ -416,7 +492,7 @@ impl<T: Real> StripCoverage<T> {
 fn render_strip<T: Real>(
     flat: &FlatScene<T>,
     paths: &[Path],
-    base: [f32; 3],
+    backdrop: Backdrop,
     width: usize,
     height: usize,
     s: usize,
@@ -424,10 +500,7 @@ fn render_strip<T: Real>(
     scratch: &mut StripCoverage<T>,
 ) {
     let (row0, rows) = strip_rows(s, height);
-    let base = base.map(T::from_f32);
-    for px in pixels.chunks_exact_mut(3) {
-        px.copy_from_slice(&base);
-    }
+    backdrop.fill_rows(row0, width, pixels);
     scratch.prepare(width);
     let stride = width + 2;
     for (path, fp) in paths.iter().zip(&flat.paths) {
