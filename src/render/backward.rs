@@ -144,6 +144,9 @@ impl Band<'_> {
         let (band0, band_rows) = strip_rows(self.band, height);
         out.paths.clear();
         out.verts.clear();
+        if self.rows_without_gradient(band0, band_rows) {
+            return;
+        }
         ws.slot.clear();
         ws.slot.resize(self.paths.len(), u32::MAX);
         for (i, fp) in self.flat.paths.iter().enumerate() {
@@ -162,7 +165,9 @@ impl Band<'_> {
         let mut row0 = band0;
         while row0 < band0 + band_rows {
             let rows = self.rows_per_pass.min(band0 + band_rows - row0);
-            self.pass(row0, rows, out, ws, coverage);
+            if !self.rows_without_gradient(row0, rows) {
+                self.pass(row0, rows, out, ws, coverage);
+            }
             row0 += rows;
         }
     }
@@ -189,7 +194,7 @@ impl Band<'_> {
             }
             ws.active.push(ws.slot[i]);
             raster::accumulate(
-                &self.flat.verts[fp.verts.clone()],
+                self.flat.outline(i),
                 row0 as i32,
                 rows,
                 width,
@@ -306,7 +311,7 @@ impl Band<'_> {
                 }
             };
             raster::backward_lines(
-                &self.flat.verts[fp.verts.clone()],
+                self.flat.outline(partial.path as usize),
                 row0 as i32,
                 rows,
                 width,
@@ -318,6 +323,16 @@ impl Band<'_> {
 }
 
 impl Band<'_> {
+    /// Whether dL/dPixel is zero on rows `row0..row0 + rows`: they add exactly nothing to any
+    /// gradient, so they are skipped (a penalty that acts on few pixels, like the structure
+    /// stage's overlap term, then costs only where it acts).
+    fn rows_without_gradient(&self, row0: usize, rows: usize) -> bool {
+        let width = self.d_out.width;
+        self.d_out.data[3 * row0 * width..3 * (row0 + rows) * width]
+            .iter()
+            .all(|&v| v == 0.0)
+    }
+
     /// Row `y` of the backdrop as channel planes (R…, G…, B…) in `planes`.
     fn fill_backdrop(&self, y: usize, planes: &mut [f32]) {
         let width = self.d_out.width;

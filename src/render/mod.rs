@@ -232,16 +232,52 @@ struct Scratch {
     backward: backward::Workspace,
 }
 
+/// Geometries a rasteriser keeps flattened. An optimisation step renders and then
+/// differentiates the same geometry (the polish three layers, the reconstruction two, in turn),
+/// and the structure loss draws one geometry in two paints, so an unchanged geometry is not
+/// flattened again.
+const FLAT_CACHE: usize = 3;
+
+/// One flattened geometry and what it was built from: every path's points (and whether it was
+/// drawable), in order.
+#[derive(Default)]
+struct CachedFlat {
+    flat: FlatScene<f32>,
+    source: Vec<Point>,
+    shape: Vec<(usize, bool)>,
+}
+
+impl CachedFlat {
+    /// Whether this is the flattening of exactly `paths`' geometry.
+    fn holds(&self, paths: &[Path]) -> bool {
+        self.shape.len() == paths.len()
+            && paths
+                .iter()
+                .zip(&self.shape)
+                .all(|(p, &(n, ok))| p.points.len() == n && check_path(p).is_ok() == ok)
+            && paths.iter().flat_map(|p| &p.points).eq(self.source.iter())
+    }
+
+    fn fill(&mut self, paths: &[Path], flattening: Flattening) {
+        self.flat.build(paths, flattening);
+        self.source.clear();
+        self.source
+            .extend(paths.iter().flat_map(|p| p.points.iter().copied()));
+        self.shape.clear();
+        self.shape.extend(
+            paths
+                .iter()
+                .map(|p| (p.points.len(), check_path(p).is_ok())),
+        );
+    }
+}
+
 /// Reusable rasteriser: keeps its buffers between calls so optimisation loops don't allocate.
 #[derive(Default)]
 pub struct Rasterizer {
     flattening: Flattening,
-    flat: FlatScene<f32>,
-    /// What `flat` was built from: every path's points (and whether it was drawable), in order.
-    /// An optimisation step renders and then differentiates the same geometry, and the structure
-    /// loss draws one geometry in two paints, so an unchanged geometry is not flattened again.
-    flat_source: Vec<Point>,
-    flat_source_shape: Vec<(usize, bool)>,
+    /// The last [`FLAT_CACHE`] geometries flattened, the current one first.
+    flats: Vec<CachedFlat>,
     pool: Mutex<Vec<Scratch>>,
     bands: Vec<backward::BandGrads>,
     totals: backward::Totals,
@@ -296,7 +332,7 @@ impl Rasterizer {
             return;
         }
         self.build(paths);
-        let flat = &self.flat;
+        let flat = &self.flats[0].flat;
         let pool = &self.pool;
         out.data
             .par_chunks_mut(STRIP_ROWS * width * 3)
@@ -386,8 +422,8 @@ impl Rasterizer {
         if self.bands.len() < band_count {
             self.bands.resize_with(band_count, Default::default);
         }
-        let rows_per_pass = backward::rows_per_pass(&self.flat, width, height);
-        let flat = &self.flat;
+        let flat = &self.flats[0].flat;
+        let rows_per_pass = backward::rows_per_pass(flat, width, height);
         let pool = &self.pool;
         self.bands[..band_count]
             .par_iter_mut()
@@ -413,30 +449,21 @@ impl Rasterizer {
 }
 
 impl Rasterizer {
-    /// Flattens `paths` into `flat` unless `flat` already holds exactly this geometry.
+    /// Makes `flats[0]` the flattening of `paths`: a cached one if it holds this geometry,
+    /// else the least recently used slot refilled.
     fn build(&mut self, paths: &[Path]) {
-        let same = self.flat_source_shape.len() == paths.len()
-            && paths
-                .iter()
-                .zip(&self.flat_source_shape)
-                .all(|(p, &(n, ok))| p.points.len() == n && check_path(p).is_ok() == ok)
-            && paths
-                .iter()
-                .flat_map(|p| &p.points)
-                .eq(self.flat_source.iter());
-        if same {
-            return;
-        }
-        self.flat.build(paths, self.flattening);
-        self.flat_source.clear();
-        self.flat_source
-            .extend(paths.iter().flat_map(|p| p.points.iter().copied()));
-        self.flat_source_shape.clear();
-        self.flat_source_shape.extend(
-            paths
-                .iter()
-                .map(|p| (p.points.len(), check_path(p).is_ok())),
-        );
+        let k = match self.flats.iter().position(|c| c.holds(paths)) {
+            Some(k) => k,
+            None => {
+                if self.flats.len() < FLAT_CACHE {
+                    self.flats.push(CachedFlat::default());
+                }
+                let last = self.flats.len() - 1;
+                self.flats[last].fill(paths, self.flattening);
+                last
+            }
+        };
+        self.flats[..=k].rotate_right(1);
     }
 }
 
@@ -503,13 +530,12 @@ fn render_strip<T: Real>(
     backdrop.fill_rows(row0, width, pixels);
     scratch.prepare(width);
     let stride = width + 2;
-    for (path, fp) in paths.iter().zip(&flat.paths) {
+    for (i, (path, fp)) in paths.iter().zip(&flat.paths).enumerate() {
         if fp.verts.is_empty() || path.opacity <= 0.0 || !meets_strip(fp.bbox, row0, rows, width) {
             continue;
         }
-        let verts = &flat.verts[fp.verts.clone()];
         raster::accumulate(
-            verts,
+            flat.outline(i),
             row0 as i32,
             rows,
             width,
