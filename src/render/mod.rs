@@ -245,6 +245,40 @@ struct CachedFlat {
     flat: FlatScene<f32>,
     source: Vec<Point>,
     shape: Vec<(usize, bool)>,
+    areas: StoredAreas,
+}
+
+/// Most signed-area values a rasteriser keeps per geometry (64 MiB); a scene whose paths'
+/// bounding boxes hold more is scan-converted again in the backward.
+const STORED_AREA_LIMIT: f64 = 16.0 * 1024.0 * 1024.0;
+
+/// The signed areas the forward computed for one geometry, kept for its backward: every
+/// optimisation step renders a geometry and then differentiates it, and the signed areas depend
+/// on the geometry alone, so the backward need not scan-convert every path again.
+#[derive(Default)]
+struct StoredAreas {
+    /// The canvas size they were computed at; `None` until a forward stores them.
+    size: Option<(usize, usize)>,
+    strips: Vec<StripAreas<f32>>,
+}
+
+/// One strip's signed areas: for each drawable path meeting the strip (in paint order), one
+/// row span per row of the strip and its values' offset in `area`.
+#[derive(Default)]
+pub(crate) struct StripAreas<T> {
+    pub paths: Vec<u32>,
+    pub spans: Vec<RowSpan>,
+    pub offsets: Vec<u32>,
+    pub area: Vec<T>,
+}
+
+impl<T> StripAreas<T> {
+    fn clear(&mut self) {
+        self.paths.clear();
+        self.spans.clear();
+        self.offsets.clear();
+        self.area.clear();
+    }
 }
 
 impl CachedFlat {
@@ -260,6 +294,7 @@ impl CachedFlat {
 
     fn fill(&mut self, paths: &[Path], flattening: Flattening) {
         self.flat.build(paths, flattening);
+        self.areas.size = None;
         self.source.clear();
         self.source
             .extend(paths.iter().flat_map(|p| p.points.iter().copied()));
@@ -332,25 +367,39 @@ impl Rasterizer {
             return;
         }
         self.build(paths);
-        let flat = &self.flats[0].flat;
+        let CachedFlat { flat, areas, .. } = &mut self.flats[0];
+        let store = areas.size != Some((width, height))
+            && backward::covered_area(flat, width, height) <= STORED_AREA_LIMIT;
+        let strip_count = height.div_ceil(STRIP_ROWS);
+        if store && areas.strips.len() < strip_count {
+            areas.strips.resize_with(strip_count, Default::default);
+        }
         let pool = &self.pool;
-        out.data
-            .par_chunks_mut(STRIP_ROWS * width * 3)
-            .enumerate()
-            .for_each(|(s, pixels)| {
-                let mut scratch = take(pool);
-                render_strip(
-                    flat,
-                    paths,
-                    backdrop,
-                    width,
-                    height,
-                    s,
-                    pixels,
-                    &mut scratch.coverage,
-                );
-                give(pool, scratch);
-            });
+        let strip = |s: usize, pixels: &mut [f32], store: Option<&mut StripAreas<f32>>| {
+            let mut scratch = take(pool);
+            let job = StripJob {
+                flat,
+                paths,
+                backdrop,
+                width,
+                height,
+                strip: s,
+            };
+            job.render(pixels, &mut scratch.coverage, store);
+            give(pool, scratch);
+        };
+        let chunks = out.data.par_chunks_mut(STRIP_ROWS * width * 3);
+        if store {
+            chunks
+                .zip(areas.strips[..strip_count].par_iter_mut())
+                .enumerate()
+                .for_each(|(s, (pixels, stored))| strip(s, pixels, Some(stored)));
+            areas.size = Some((width, height));
+        } else {
+            chunks
+                .enumerate()
+                .for_each(|(s, pixels)| strip(s, pixels, None));
+        }
     }
 
     /// The same forward as [`render`](Self::render) evaluated entirely in f64 (flattening,
@@ -373,8 +422,15 @@ impl Rasterizer {
         out.par_chunks_mut(STRIP_ROWS * width * 3)
             .enumerate()
             .for_each_init(StripCoverage::<f64>::default, |coverage, (s, pixels)| {
-                let backdrop = Backdrop::Color(base);
-                render_strip(&flat, paths, backdrop, width, height, s, pixels, coverage)
+                let job = StripJob {
+                    flat: &flat,
+                    paths,
+                    backdrop: Backdrop::Color(base),
+                    width,
+                    height,
+                    strip: s,
+                };
+                job.render(pixels, coverage, None);
             });
         out
     }
@@ -422,7 +478,8 @@ impl Rasterizer {
         if self.bands.len() < band_count {
             self.bands.resize_with(band_count, Default::default);
         }
-        let flat = &self.flats[0].flat;
+        let CachedFlat { flat, areas, .. } = &self.flats[0];
+        let stored = (areas.size == Some((width, height))).then(|| &areas.strips[..band_count]);
         let rows_per_pass = backward::rows_per_pass(flat, width, height);
         let pool = &self.pool;
         self.bands[..band_count]
@@ -437,6 +494,7 @@ impl Rasterizer {
                     d_out,
                     band,
                     rows_per_pass,
+                    stored: stored.map(|strips| &strips[band]),
                 };
                 job.run(grads, &mut scratch.backward, &mut scratch.coverage);
                 give(pool, scratch);
@@ -515,52 +573,81 @@ impl<T: Real> StripCoverage<T> {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn render_strip<T: Real>(
-    flat: &FlatScene<T>,
-    paths: &[Path],
-    backdrop: Backdrop,
+/// One strip of a forward render.
+struct StripJob<'a, T> {
+    flat: &'a FlatScene<T>,
+    paths: &'a [Path],
+    backdrop: Backdrop<'a>,
     width: usize,
     height: usize,
-    s: usize,
-    pixels: &mut [T],
-    scratch: &mut StripCoverage<T>,
-) {
-    let (row0, rows) = strip_rows(s, height);
-    backdrop.fill_rows(row0, width, pixels);
-    scratch.prepare(width);
-    let stride = width + 2;
-    for (i, (path, fp)) in paths.iter().zip(&flat.paths).enumerate() {
-        if fp.verts.is_empty() || path.opacity <= 0.0 || !meets_strip(fp.bbox, row0, rows, width) {
-            continue;
+    strip: usize,
+}
+
+impl<T: Real> StripJob<'_, T> {
+    /// Paints the strip into `pixels`; with `store`, also keeps every drawable path's signed
+    /// areas there (those of paths with zero opacity too: the backward needs them).
+    fn render(
+        &self,
+        pixels: &mut [T],
+        scratch: &mut StripCoverage<T>,
+        mut store: Option<&mut StripAreas<T>>,
+    ) {
+        let (flat, width) = (self.flat, self.width);
+        let (row0, rows) = strip_rows(self.strip, self.height);
+        self.backdrop.fill_rows(row0, width, pixels);
+        scratch.prepare(width);
+        if let Some(stored) = store.as_deref_mut() {
+            stored.clear();
         }
-        raster::accumulate(
-            flat.outline(i),
-            row0 as i32,
-            rows,
-            width,
-            &mut scratch.delta,
-            &mut scratch.spans,
-        );
-        let (op, c) = (T::from_f32(path.opacity), path.color.map(T::from_f32));
-        for r in 0..rows {
-            let span = scratch.spans[r];
-            if span.len() == 0 {
+        let stride = width + 2;
+        for (i, (path, fp)) in self.paths.iter().zip(&flat.paths).enumerate() {
+            let paints = path.opacity > 0.0;
+            if fp.verts.is_empty()
+                || !(paints || store.is_some())
+                || !meets_strip(fp.bbox, row0, rows, width)
+            {
                 continue;
             }
-            let out = &mut pixels[r * width * 3..(r + 1) * width * 3];
-            raster::prefix_row(
-                &mut scratch.delta[r * stride..(r + 1) * stride],
-                span,
+            raster::accumulate(
+                flat.outline(i),
+                row0 as i32,
+                rows,
                 width,
-                |x, acc| {
-                    let a = acc.abs().min(T::ONE) * op;
-                    let p = &mut out[3 * x..3 * x + 3];
-                    p[0] += a * (c[0] - p[0]);
-                    p[1] += a * (c[1] - p[1]);
-                    p[2] += a * (c[2] - p[2]);
-                },
+                &mut scratch.delta,
+                &mut scratch.spans,
             );
+            if let Some(stored) = store.as_deref_mut() {
+                stored.paths.push(i as u32);
+            }
+            let (op, c) = (T::from_f32(path.opacity), path.color.map(T::from_f32));
+            for r in 0..rows {
+                let span = scratch.spans[r];
+                if let Some(stored) = store.as_deref_mut() {
+                    stored.spans.push(span);
+                    stored.offsets.push(stored.area.len() as u32);
+                }
+                if span.len() == 0 {
+                    continue;
+                }
+                let out = &mut pixels[r * width * 3..(r + 1) * width * 3];
+                let mut composite = |x: usize, acc: T| {
+                    if paints {
+                        let a = acc.abs().min(T::ONE) * op;
+                        let p = &mut out[3 * x..3 * x + 3];
+                        p[0] += a * (c[0] - p[0]);
+                        p[1] += a * (c[1] - p[1]);
+                        p[2] += a * (c[2] - p[2]);
+                    }
+                };
+                let delta = &mut scratch.delta[r * stride..(r + 1) * stride];
+                match store.as_deref_mut() {
+                    Some(stored) => raster::prefix_row(delta, span, width, |x, acc| {
+                        stored.area.push(acc);
+                        composite(x, acc);
+                    }),
+                    None => raster::prefix_row(delta, span, width, composite),
+                }
+            }
         }
     }
 }
