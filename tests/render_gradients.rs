@@ -3,7 +3,7 @@
 mod render_support;
 
 use covec::render::composite::{product, product_backward};
-use covec::render::{Flattening, Image, PathGrad, Rasterizer};
+use covec::render::{Backdrop, Flattening, Image, PathGrad, Rasterizer};
 use covec::scene::Path;
 use render_support::*;
 
@@ -220,4 +220,72 @@ fn deep_overlap_gradients_match_finite_differences() {
         let image = raster.render_f64(&scene, base, size, size);
         weighted_sq_loss_f64(&image, &target, &weights)
     });
+}
+
+#[test]
+fn an_image_backdrop_is_the_affine_blend_of_black_and_white() {
+    // "Over" is affine in what lies below: out = C + T·backdrop, with C the render over black
+    // and T = (render over white) − C. The one-pass render and backward over an image must
+    // agree with that blend and with its backward (d·(1 − backdrop) over black, d·backdrop over
+    // white).
+    let size = 40;
+    let mut rng = SplitMix64(21);
+    let paths = mixed_scene(&mut rng, size as f32, 5, 2);
+    let backdrop = Image {
+        width: size,
+        height: size,
+        data: (0..size * size * 3).map(|_| rng.uniform()).collect(),
+    };
+    let mut raster = Rasterizer::new();
+    let mut over = Image::default();
+    raster.render_over(&paths, Backdrop::Image(&backdrop), size, size, &mut over);
+    let black = render(&mut raster, &paths, [0.0; 3], size);
+    let white = render(&mut raster, &paths, [1.0; 3], size);
+    for i in 0..over.data.len() {
+        let blend = black.data[i] + (white.data[i] - black.data[i]) * backdrop.data[i];
+        assert!((over.data[i] - blend).abs() < 1e-5, "value {i}");
+    }
+
+    let (target, weights) = target_and_weights(&mut rng, size * size * 3);
+    let (_, d_out) = weighted_sq_loss(&over, &target, &weights);
+    let mut grads = zero_grads(&paths);
+    raster.backward_over(&paths, Backdrop::Image(&backdrop), &d_out, &mut grads);
+    let mut blended = zero_grads(&paths);
+    let mut part = d_out.clone();
+    for (v, (&d, &b)) in part
+        .data
+        .iter_mut()
+        .zip(d_out.data.iter().zip(&backdrop.data))
+    {
+        *v = d * (1.0 - b);
+    }
+    raster.backward(&paths, [0.0; 3], &part, &mut blended);
+    for (v, (&d, &b)) in part
+        .data
+        .iter_mut()
+        .zip(d_out.data.iter().zip(&backdrop.data))
+    {
+        *v = d * b;
+    }
+    raster.backward(&paths, [1.0; 3], &part, &mut blended);
+    for (g, e) in grads.iter().zip(&blended) {
+        let close = |a: f32, b: f32| (a - b).abs() <= 1e-3 * (1.0 + b.abs());
+        assert!(
+            close(g.opacity, e.opacity),
+            "{} vs {}",
+            g.opacity,
+            e.opacity
+        );
+        for c in 0..3 {
+            assert!(
+                close(g.color[c], e.color[c]),
+                "{:?} vs {:?}",
+                g.color,
+                e.color
+            );
+        }
+        for (p, q) in g.points.iter().zip(&e.points) {
+            assert!(close(p.x, q.x) && close(p.y, q.y), "{p:?} vs {q:?}");
+        }
+    }
 }

@@ -7,8 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use super::params::{Error, Iterations, Mode, Observer, Progress, ResolvedMode};
-use crate::optim::loss::resize_like;
-use crate::render::{Image, PathGrad, Rasterizer};
+use crate::render::{Backdrop, Image, PathGrad, Rasterizer};
 use crate::scene::{LayerKind, Path, Scene};
 
 /// What a stage does; [`super::run`] dispatches on it.
@@ -300,9 +299,7 @@ pub(crate) struct Canvas {
     pub raster: Rasterizer,
     pub width: usize,
     pub height: usize,
-    scratch_black: Image,
-    scratch_white: Image,
-    scratch_grad: Image,
+    scratch: Image,
 }
 
 impl Canvas {
@@ -311,9 +308,7 @@ impl Canvas {
             raster: Rasterizer::new(),
             width,
             height,
-            scratch_black: Image::default(),
-            scratch_white: Image::default(),
-            scratch_grad: Image::default(),
+            scratch: Image::default(),
         }
     }
 
@@ -328,30 +323,16 @@ impl Canvas {
         self.render(&scene.layer(kind).paths, kind.base(), out);
     }
 
-    /// Renders `paths` painted over an arbitrary `backdrop` image. "Over" is affine in the
-    /// backdrop (`out = C + T·backdrop` per value), so two renders over black and white give it
-    /// exactly; this lets a stage paint only the paths it trains on top of a cached render of the
-    /// frozen ones.
+    /// Renders `paths` painted over a `backdrop` image: lets a stage paint only the paths it
+    /// trains on top of a cached render of the frozen ones.
     pub fn render_over(&mut self, paths: &[Path], backdrop: &Image, out: &mut Image) {
-        self.raster.render(
+        self.raster.render_over(
             paths,
-            [0.0; 3],
+            Backdrop::Image(backdrop),
             self.width,
             self.height,
-            &mut self.scratch_black,
+            out,
         );
-        self.raster.render(
-            paths,
-            [1.0; 3],
-            self.width,
-            self.height,
-            &mut self.scratch_white,
-        );
-        resize_like(out, backdrop);
-        for i in 0..out.data.len() {
-            let black = self.scratch_black.data[i];
-            out.data[i] = black + (self.scratch_white.data[i] - black) * backdrop.data[i];
-        }
     }
 
     /// Backward of [`Canvas::render_over`]: adds dLoss/dparams of `paths` into `grads`.
@@ -362,17 +343,8 @@ impl Canvas {
         d_out: &Image,
         grads: &mut [PathGrad],
     ) {
-        resize_like(&mut self.scratch_grad, d_out);
-        for i in 0..d_out.data.len() {
-            self.scratch_grad.data[i] = d_out.data[i] * (1.0 - backdrop.data[i]);
-        }
         self.raster
-            .backward(paths, [0.0; 3], &self.scratch_grad, grads);
-        for i in 0..d_out.data.len() {
-            self.scratch_grad.data[i] = d_out.data[i] * backdrop.data[i];
-        }
-        self.raster
-            .backward(paths, [1.0; 3], &self.scratch_grad, grads);
+            .backward_over(paths, Backdrop::Image(backdrop), d_out, grads);
     }
 
     /// Coverage in (0, 1] of `path` alone (its opacity ignored) at the pixels it touches, as
@@ -388,9 +360,9 @@ impl Canvas {
             [0.0; 3],
             self.width,
             self.height,
-            &mut self.scratch_black,
+            &mut self.scratch,
         );
-        self.scratch_black
+        self.scratch
             .data
             .chunks_exact(3)
             .enumerate()

@@ -14,7 +14,9 @@
 
 use super::flatten::FlatScene;
 use super::raster::{self, RowSpan};
-use super::{Image, PathGrad, STRIP_ROWS, StripCoverage, meets_strip, strip_rows};
+use super::{
+    Backdrop, Image, PathGrad, STRIP_ROWS, StripAreas, StripCoverage, meets_strip, strip_rows,
+};
 use crate::scene::Path;
 
 /// Target size of one pass's signed-area buffer: small enough to stay in a core's L2 cache.
@@ -30,17 +32,7 @@ const SATURATION: f32 = 1.0 + 1e-5;
 /// [`PASS_AREA_BYTES`] at the scene's mean overlap depth (sum of clipped bounding-box areas
 /// over the canvas area). A function of the scene only, so results stay thread-count free.
 pub(super) fn rows_per_pass(flat: &FlatScene<f32>, width: usize, height: usize) -> usize {
-    let (w, h) = (width as f32, height as f32);
-    let covered: f64 = flat
-        .paths
-        .iter()
-        .filter(|p| !p.verts.is_empty())
-        .map(|p| {
-            let dx = (p.bbox[2].min(w) - p.bbox[0].max(0.0)).max(0.0);
-            let dy = (p.bbox[3].min(h) - p.bbox[1].max(0.0)).max(0.0);
-            dx as f64 * dy as f64
-        })
-        .sum();
+    let covered = covered_area(flat, width, height);
     let depth = (covered / (width * height) as f64).max(1.0);
     let fit = PASS_AREA_BYTES / (4.0 * depth * width as f64);
     let mut rows = STRIP_ROWS;
@@ -48,6 +40,21 @@ pub(super) fn rows_per_pass(flat: &FlatScene<f32>, width: usize, height: usize) 
         rows /= 2;
     }
     rows
+}
+
+/// Sum of the drawable paths' bounding-box areas clipped to the canvas: a bound on the number of
+/// signed-area values a render computes.
+pub(super) fn covered_area(flat: &FlatScene<f32>, width: usize, height: usize) -> f64 {
+    let (w, h) = (width as f32, height as f32);
+    flat.paths
+        .iter()
+        .filter(|p| !p.verts.is_empty())
+        .map(|p| {
+            let dx = (p.bbox[2].min(w) - p.bbox[0].max(0.0)).max(0.0);
+            let dy = (p.bbox[3].min(h) - p.bbox[1].max(0.0)).max(0.0);
+            dx as f64 * dy as f64
+        })
+        .sum()
 }
 
 /// Partial gradients of one band: one entry per path meeting it, in paint order.
@@ -132,10 +139,12 @@ impl Totals {
 pub(super) struct Band<'a> {
     pub flat: &'a FlatScene<f32>,
     pub paths: &'a [Path],
-    pub base: [f32; 3],
+    pub backdrop: Backdrop<'a>,
     pub d_out: &'a Image,
     pub band: usize,
     pub rows_per_pass: usize,
+    /// The signed areas the forward kept for this band's strip, if it kept them.
+    pub stored: Option<&'a StripAreas<f32>>,
 }
 
 impl Band<'_> {
@@ -144,6 +153,9 @@ impl Band<'_> {
         let (band0, band_rows) = strip_rows(self.band, height);
         out.paths.clear();
         out.verts.clear();
+        if self.rows_without_gradient(band0, band_rows) {
+            return;
+        }
         ws.slot.clear();
         ws.slot.resize(self.paths.len(), u32::MAX);
         for (i, fp) in self.flat.paths.iter().enumerate() {
@@ -162,7 +174,9 @@ impl Band<'_> {
         let mut row0 = band0;
         while row0 < band0 + band_rows {
             let rows = self.rows_per_pass.min(band0 + band_rows - row0);
-            self.pass(row0, rows, out, ws, coverage);
+            if !self.rows_without_gradient(row0, rows) {
+                self.pass(row0, rows, out, ws, coverage);
+            }
             row0 += rows;
         }
     }
@@ -176,50 +190,14 @@ impl Band<'_> {
         cov: &mut StripCoverage<f32>,
     ) {
         let width = self.d_out.width;
-        let stride = width + 2;
 
         // 1. Signed areas of every path meeting the pass.
         ws.active.clear();
         ws.spans.clear();
         ws.offsets.clear();
-        let mut total = 0usize;
-        for (i, fp) in self.flat.paths.iter().enumerate() {
-            if fp.verts.is_empty() || !meets_strip(fp.bbox, row0, rows, width) {
-                continue;
-            }
-            ws.active.push(ws.slot[i]);
-            raster::accumulate(
-                &self.flat.verts[fp.verts.clone()],
-                row0 as i32,
-                rows,
-                width,
-                &mut cov.delta,
-                &mut cov.spans,
-            );
-            let first = total;
-            for &span in &cov.spans[..rows] {
-                ws.spans.push(span);
-                ws.offsets.push(total as u32);
-                total += span.len();
-            }
-            if ws.area.len() < total {
-                ws.area.resize(total, 0.0);
-            }
-            let mut off = first;
-            for (r, &span) in cov.spans[..rows].iter().enumerate() {
-                if span.len() == 0 {
-                    continue;
-                }
-                let dst = &mut ws.area[off..off + span.len()];
-                let lo = span.lo as usize;
-                raster::prefix_row(
-                    &mut cov.delta[r * stride..(r + 1) * stride],
-                    span,
-                    width,
-                    |x, acc| dst[x - lo] = acc,
-                );
-                off += span.len();
-            }
+        match self.stored {
+            Some(stored) => self.stored_areas(stored, row0, rows, ws),
+            None => self.scan_areas(row0, rows, ws, cov),
         }
 
         // 2. Per row: composite forwards keeping the colour below each path, then backwards.
@@ -227,9 +205,7 @@ impl Band<'_> {
         ws.row_color.resize(width * 3, 0.0);
         ws.row_grad.resize(width * 3, 0.0);
         for r in 0..rows {
-            for (plane, &v) in ws.row_color.chunks_exact_mut(width).zip(&self.base) {
-                plane.fill(v);
-            }
+            self.fill_backdrop(row0 + r, &mut ws.row_color);
             let mut below_len = 0;
             for (k, &slot) in ws.active.iter().enumerate() {
                 let span = ws.spans[k * rows + r];
@@ -308,13 +284,129 @@ impl Band<'_> {
                 }
             };
             raster::backward_lines(
-                &self.flat.verts[fp.verts.clone()],
+                self.flat.outline(partial.path as usize),
                 row0 as i32,
                 rows,
                 width,
                 &mut out.verts[start..start + fp.verts.len()],
                 lookup,
             );
+        }
+    }
+}
+
+impl Band<'_> {
+    /// Step 1 by scan conversion: the signed areas of every path meeting rows
+    /// `row0..row0 + rows` into `ws`.
+    fn scan_areas(
+        &self,
+        row0: usize,
+        rows: usize,
+        ws: &mut Workspace,
+        cov: &mut StripCoverage<f32>,
+    ) {
+        let width = self.d_out.width;
+        let stride = width + 2;
+        let mut total = 0usize;
+        for (i, fp) in self.flat.paths.iter().enumerate() {
+            if fp.verts.is_empty() || !meets_strip(fp.bbox, row0, rows, width) {
+                continue;
+            }
+            ws.active.push(ws.slot[i]);
+            raster::accumulate(
+                self.flat.outline(i),
+                row0 as i32,
+                rows,
+                width,
+                &mut cov.delta,
+                &mut cov.spans,
+            );
+            let first = total;
+            for &span in &cov.spans[..rows] {
+                ws.spans.push(span);
+                ws.offsets.push(total as u32);
+                total += span.len();
+            }
+            if ws.area.len() < total {
+                ws.area.resize(total, 0.0);
+            }
+            let mut off = first;
+            for (r, &span) in cov.spans[..rows].iter().enumerate() {
+                if span.len() == 0 {
+                    continue;
+                }
+                let dst = &mut ws.area[off..off + span.len()];
+                let lo = span.lo as usize;
+                raster::prefix_row(
+                    &mut cov.delta[r * stride..(r + 1) * stride],
+                    span,
+                    width,
+                    |x, acc| dst[x - lo] = acc,
+                );
+                off += span.len();
+            }
+        }
+    }
+
+    /// Step 1 from the areas the forward kept (the same values: a row's signed areas do not
+    /// depend on which rows are scan-converted with it).
+    fn stored_areas(&self, stored: &StripAreas<f32>, row0: usize, rows: usize, ws: &mut Workspace) {
+        let width = self.d_out.width;
+        let (band0, band_rows) = strip_rows(self.band, self.d_out.height);
+        let mut total = 0usize;
+        for (k, &i) in stored.paths.iter().enumerate() {
+            let fp = &self.flat.paths[i as usize];
+            if !meets_strip(fp.bbox, row0, rows, width) {
+                continue;
+            }
+            ws.active.push(ws.slot[i as usize]);
+            let first = k * band_rows + (row0 - band0);
+            for (&span, &offset) in stored.spans[first..first + rows]
+                .iter()
+                .zip(&stored.offsets[first..first + rows])
+            {
+                ws.spans.push(span);
+                ws.offsets.push(total as u32);
+                let n = span.len();
+                if ws.area.len() < total + n {
+                    ws.area.resize(total + n, 0.0);
+                }
+                let offset = offset as usize;
+                ws.area[total..total + n].copy_from_slice(&stored.area[offset..offset + n]);
+                total += n;
+            }
+        }
+    }
+
+    /// Whether dL/dPixel is zero on rows `row0..row0 + rows`: they add exactly nothing to any
+    /// gradient, so they are skipped (a penalty that acts on few pixels, like the structure
+    /// stage's overlap term, then costs only where it acts).
+    fn rows_without_gradient(&self, row0: usize, rows: usize) -> bool {
+        let width = self.d_out.width;
+        self.d_out.data[3 * row0 * width..3 * (row0 + rows) * width]
+            .iter()
+            .all(|&v| v == 0.0)
+    }
+
+    /// Row `y` of the backdrop as channel planes (R…, G…, B…) in `planes`.
+    fn fill_backdrop(&self, y: usize, planes: &mut [f32]) {
+        let width = self.d_out.width;
+        match self.backdrop {
+            Backdrop::Color(color) => {
+                for (plane, &v) in planes.chunks_exact_mut(width).zip(&color) {
+                    plane.fill(v);
+                }
+            }
+            Backdrop::Image(image) => {
+                let row = &image.data[3 * y * width..3 * (y + 1) * width];
+                let (r, rest) = planes.split_at_mut(width);
+                let (g, b) = rest.split_at_mut(width);
+                for (x, px) in row.chunks_exact(3).enumerate() {
+                    r[x] = px[0];
+                    g[x] = px[1];
+                    b[x] = px[2];
+                }
+            }
         }
     }
 }

@@ -12,11 +12,42 @@ use crate::scene::{Path, Point};
 /// overflow; anything that far away is off the canvas anyway.
 const COORD_LIMIT: f32 = 1.0e6;
 
+/// Edges per chunk of an outline (see [`Outline`]).
+pub(crate) const EDGE_CHUNK: usize = 16;
+
+/// A path's closed polyline, with the vertical extent of each run of [`EDGE_CHUNK`] edges: a
+/// strip of rows visits only the runs that reach it, not every edge of a tall path.
+#[derive(Clone, Copy)]
+pub(crate) struct Outline<'a, T> {
+    pub verts: &'a [[T; 2]],
+    /// `[y_min, y_max]` of edges `k · EDGE_CHUNK .. (k + 1) · EDGE_CHUNK` (both ends), per `k`.
+    pub chunks: &'a [[T; 2]],
+}
+
+impl<T: Real> Outline<'_, T> {
+    /// The edges `(j, j + 1 mod n)` of the chunks for which `skip(y_min, y_max)` is false,
+    /// in order.
+    #[inline(always)]
+    pub fn edges<'s>(
+        &'s self,
+        skip: impl Fn(T, T) -> bool + 's,
+    ) -> impl Iterator<Item = usize> + 's {
+        let n = self.verts.len();
+        self.chunks
+            .iter()
+            .enumerate()
+            .filter(move |(_, c)| !skip(c[0], c[1]))
+            .flat_map(move |(k, _)| k * EDGE_CHUNK..((k + 1) * EDGE_CHUNK).min(n))
+    }
+}
+
 /// One path after flattening.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct FlatPath {
     /// Range into [`FlatScene::verts`]; empty for paths that are not drawn.
     pub verts: Range<usize>,
+    /// Range into [`FlatScene::chunks`].
+    pub chunks: Range<usize>,
     /// Range into [`FlatScene::lines_per_segment`].
     pub segments: Range<usize>,
     /// Bounding box of the polyline: `[x_min, y_min, x_max, y_max]`.
@@ -27,6 +58,8 @@ pub(crate) struct FlatPath {
 #[derive(Debug, Default)]
 pub(crate) struct FlatScene<T> {
     pub verts: Vec<[T; 2]>,
+    /// Vertical extents of the outlines' edge chunks (see [`Outline`]).
+    pub chunks: Vec<[T; 2]>,
     pub lines_per_segment: Vec<u32>,
     pub paths: Vec<FlatPath>,
 }
@@ -34,6 +67,7 @@ pub(crate) struct FlatScene<T> {
 impl<T: Real> FlatScene<T> {
     pub fn build(&mut self, paths: &[Path], flattening: Flattening) {
         self.verts.clear();
+        self.chunks.clear();
         self.lines_per_segment.clear();
         self.paths.clear();
         for path in paths {
@@ -56,6 +90,16 @@ impl<T: Real> FlatScene<T> {
                 }
             }
             let verts = vert_start..self.verts.len();
+            let chunk_start = self.chunks.len();
+            let outline = &self.verts[verts.clone()];
+            for k in (0..outline.len()).step_by(EDGE_CHUNK) {
+                let end = (k + EDGE_CHUNK).min(outline.len());
+                let last = outline[end % outline.len()][1];
+                let (lo, hi) = outline[k..end]
+                    .iter()
+                    .fold((last, last), |(lo, hi), v| (lo.min(v[1]), hi.max(v[1])));
+                self.chunks.push([lo, hi]);
+            }
             let mut bbox = [
                 f32::INFINITY,
                 f32::INFINITY,
@@ -74,9 +118,21 @@ impl<T: Real> FlatScene<T> {
             }
             self.paths.push(FlatPath {
                 verts,
+                chunks: chunk_start..self.chunks.len(),
                 segments: seg_start..self.lines_per_segment.len(),
                 bbox,
             });
+        }
+    }
+}
+
+impl<T> FlatScene<T> {
+    /// The outline of path `path`.
+    pub fn outline(&self, path: usize) -> Outline<'_, T> {
+        let p = &self.paths[path];
+        Outline {
+            verts: &self.verts[p.verts.clone()],
+            chunks: &self.chunks[p.chunks.clone()],
         }
     }
 }

@@ -2,7 +2,8 @@
 //!
 //! Contract (other modules code against exactly this):
 //! - [`Image`]: f32 RGB, row-major, interleaved (`data[3 * (y * width + x) + c]`).
-//! - [`Rasterizer::render`] paints `paths` back to front with "over" onto a `base` colour;
+//! - [`Rasterizer::render`] paints `paths` back to front with "over" onto a `base` colour
+//!   ([`Rasterizer::render_over`]: onto a [`Backdrop`] colour or image);
 //!   each path's alpha at a pixel is its exact area coverage × opacity. Non-zero fill.
 //! - [`Rasterizer::backward`] takes dLoss/dPixel for that same render and **adds** dLoss/d(points,
 //!   colour, opacity) into `grads` (one [`PathGrad`] per path, same shapes as the paths).
@@ -27,8 +28,11 @@
 //! The canvas is processed in strips of [`STRIP_ROWS`] rows with rayon (the caller's current
 //! pool); every strip produces its own partial gradients, reduced in strip order, so results do
 //! not depend on the thread count. Per-thread buffers live in the [`Rasterizer`] and are reused,
-//! so after the first call neither pass allocates. Work per path is proportional to the rows
-//! of its bounding box times the width of its edges' span in each row, never W×H×paths.
+//! so after the first call neither pass allocates. The rasteriser keeps the last few geometries
+//! flattened, and with each the signed areas its forward computed, so the backward that follows
+//! a render of the same geometry reads them instead of scan-converting again. Work per path is
+//! proportional to the rows of its bounding box times the width of its edges' span in each row,
+//! never W×H×paths.
 //!
 //! For finite-difference checks, [`Rasterizer::render_f64`] evaluates the same forward in f64,
 //! and [`Flattening::Fixed`] pins the number of lines per cubic.
@@ -91,6 +95,49 @@ impl Image {
         self.width = width;
         self.height = height;
         self.data.resize(width * height * 3, 0.0);
+    }
+}
+
+/// What the paths are painted over: a flat colour or a whole image (same size as the render).
+#[derive(Clone, Copy, Debug)]
+pub enum Backdrop<'a> {
+    /// Every pixel starts as this colour.
+    Color([f32; 3]),
+    /// Every pixel starts as this image's pixel: "over" onto a cached render of frozen paths in
+    /// one pass (no gradient flows into the image).
+    Image(&'a Image),
+}
+
+impl Backdrop<'_> {
+    /// Writes the backdrop of rows `row0..row0 + rows` (interleaved RGB) into `pixels`.
+    fn fill_rows<T: Real>(&self, row0: usize, width: usize, pixels: &mut [T]) {
+        match self {
+            Backdrop::Color(color) => {
+                let color = color.map(T::from_f32);
+                for px in pixels.chunks_exact_mut(3) {
+                    px.copy_from_slice(&color);
+                }
+            }
+            Backdrop::Image(image) => {
+                let start = 3 * row0 * width;
+                let src = &image.data[start..start + pixels.len()];
+                for (dst, &v) in pixels.iter_mut().zip(src) {
+                    *dst = T::from_f32(v);
+                }
+            }
+        }
+    }
+
+    /// Panics unless an image backdrop is `width × height`.
+    fn check_size(&self, width: usize, height: usize) {
+        if let Backdrop::Image(image) = self {
+            assert!(
+                image.width == width
+                    && image.height == height
+                    && image.data.len() == width * height * 3,
+                "the backdrop must be the render's size"
+            );
+        }
     }
 }
 
@@ -188,16 +235,87 @@ struct Scratch {
     backward: backward::Workspace,
 }
 
+/// Geometries a rasteriser keeps flattened. An optimisation step renders and then
+/// differentiates the same geometry (the polish three layers, the reconstruction two, in turn),
+/// and the structure loss draws one geometry in two paints, so an unchanged geometry is not
+/// flattened again.
+const FLAT_CACHE: usize = 3;
+
+/// One flattened geometry and what it was built from: every path's points (and whether it was
+/// drawable), in order.
+#[derive(Default)]
+struct CachedFlat {
+    flat: FlatScene<f32>,
+    source: Vec<Point>,
+    shape: Vec<(usize, bool)>,
+    areas: StoredAreas,
+}
+
+/// Most signed-area values a rasteriser keeps per geometry (64 MiB); a scene whose paths'
+/// bounding boxes hold more is scan-converted again in the backward.
+const STORED_AREA_LIMIT: f64 = 16.0 * 1024.0 * 1024.0;
+
+/// The signed areas the forward computed for one geometry, kept for its backward: every
+/// optimisation step renders a geometry and then differentiates it, and the signed areas depend
+/// on the geometry alone, so the backward need not scan-convert every path again.
+#[derive(Default)]
+struct StoredAreas {
+    /// The canvas size they were computed at; `None` until a forward stores them.
+    size: Option<(usize, usize)>,
+    strips: Vec<StripAreas<f32>>,
+}
+
+/// One strip's signed areas: for each drawable path meeting the strip (in paint order), one
+/// row span per row of the strip and its values' offset in `area`.
+#[derive(Default)]
+pub(crate) struct StripAreas<T> {
+    pub paths: Vec<u32>,
+    pub spans: Vec<RowSpan>,
+    pub offsets: Vec<u32>,
+    pub area: Vec<T>,
+}
+
+impl<T> StripAreas<T> {
+    fn clear(&mut self) {
+        self.paths.clear();
+        self.spans.clear();
+        self.offsets.clear();
+        self.area.clear();
+    }
+}
+
+impl CachedFlat {
+    /// Whether this is the flattening of exactly `paths`' geometry.
+    fn holds(&self, paths: &[Path]) -> bool {
+        self.shape.len() == paths.len()
+            && paths
+                .iter()
+                .zip(&self.shape)
+                .all(|(p, &(n, ok))| p.points.len() == n && check_path(p).is_ok() == ok)
+            && paths.iter().flat_map(|p| &p.points).eq(self.source.iter())
+    }
+
+    fn fill(&mut self, paths: &[Path], flattening: Flattening) {
+        self.flat.build(paths, flattening);
+        self.areas.size = None;
+        self.source.clear();
+        self.source
+            .extend(paths.iter().flat_map(|p| p.points.iter().copied()));
+        self.shape.clear();
+        self.shape.extend(
+            paths
+                .iter()
+                .map(|p| (p.points.len(), check_path(p).is_ok())),
+        );
+    }
+}
+
 /// Reusable rasteriser: keeps its buffers between calls so optimisation loops don't allocate.
 #[derive(Default)]
 pub struct Rasterizer {
     flattening: Flattening,
-    flat: FlatScene<f32>,
-    /// What `flat` was built from: every path's points (and whether it was drawable), in order.
-    /// An optimisation step renders and then differentiates the same geometry, and the structure
-    /// loss draws one geometry in two paints, so an unchanged geometry is not flattened again.
-    flat_source: Vec<Point>,
-    flat_source_shape: Vec<(usize, bool)>,
+    /// The last [`FLAT_CACHE`] geometries flattened, the current one first.
+    flats: Vec<CachedFlat>,
     pool: Mutex<Vec<Scratch>>,
     bands: Vec<backward::BandGrads>,
     totals: backward::Totals,
@@ -231,30 +349,60 @@ impl Rasterizer {
         height: usize,
         out: &mut Image,
     ) {
+        self.render_over(paths, Backdrop::Color(base), width, height, out);
+    }
+
+    /// Renders `paths` over `backdrop` into `out`, which is resized to `width × height`.
+    ///
+    /// # Panics
+    /// If an image backdrop is not `width × height`.
+    pub fn render_over(
+        &mut self,
+        paths: &[Path],
+        backdrop: Backdrop,
+        width: usize,
+        height: usize,
+        out: &mut Image,
+    ) {
+        backdrop.check_size(width, height);
         out.resize(width, height);
         if width == 0 || height == 0 {
             return;
         }
         self.build(paths);
-        let flat = &self.flat;
+        let CachedFlat { flat, areas, .. } = &mut self.flats[0];
+        let store = areas.size != Some((width, height))
+            && backward::covered_area(flat, width, height) <= STORED_AREA_LIMIT;
+        let strip_count = height.div_ceil(STRIP_ROWS);
+        if store && areas.strips.len() < strip_count {
+            areas.strips.resize_with(strip_count, Default::default);
+        }
         let pool = &self.pool;
-        out.data
-            .par_chunks_mut(STRIP_ROWS * width * 3)
-            .enumerate()
-            .for_each(|(s, pixels)| {
-                let mut scratch = take(pool);
-                render_strip(
-                    flat,
-                    paths,
-                    base,
-                    width,
-                    height,
-                    s,
-                    pixels,
-                    &mut scratch.coverage,
-                );
-                give(pool, scratch);
-            });
+        let strip = |s: usize, pixels: &mut [f32], store: Option<&mut StripAreas<f32>>| {
+            let mut scratch = take(pool);
+            let job = StripJob {
+                flat,
+                paths,
+                backdrop,
+                width,
+                height,
+                strip: s,
+            };
+            job.render(pixels, &mut scratch.coverage, store);
+            give(pool, scratch);
+        };
+        let chunks = out.data.par_chunks_mut(STRIP_ROWS * width * 3);
+        if store {
+            chunks
+                .zip(areas.strips[..strip_count].par_iter_mut())
+                .enumerate()
+                .for_each(|(s, (pixels, stored))| strip(s, pixels, Some(stored)));
+            areas.size = Some((width, height));
+        } else {
+            chunks
+                .enumerate()
+                .for_each(|(s, pixels)| strip(s, pixels, None));
+        }
     }
 
     /// The same forward as [`render`](Self::render) evaluated entirely in f64 (flattening,
@@ -277,7 +425,15 @@ impl Rasterizer {
         out.par_chunks_mut(STRIP_ROWS * width * 3)
             .enumerate()
             .for_each_init(StripCoverage::<f64>::default, |coverage, (s, pixels)| {
-                render_strip(&flat, paths, base, width, height, s, pixels, coverage)
+                let job = StripJob {
+                    flat: &flat,
+                    paths,
+                    backdrop: Backdrop::Color(base),
+                    width,
+                    height,
+                    strip: s,
+                };
+                job.render(pixels, coverage, None);
             });
         out
     }
@@ -295,7 +451,22 @@ impl Rasterizer {
         d_out: &Image,
         grads: &mut [PathGrad],
     ) {
+        self.backward_over(paths, Backdrop::Color(base), d_out, grads);
+    }
+
+    /// [`backward`](Self::backward) of [`render_over`](Self::render_over) with `backdrop`.
+    ///
+    /// # Panics
+    /// As [`backward`](Self::backward), and if an image backdrop is not `d_out`'s size.
+    pub fn backward_over(
+        &mut self,
+        paths: &[Path],
+        backdrop: Backdrop,
+        d_out: &Image,
+        grads: &mut [PathGrad],
+    ) {
         let (width, height) = (d_out.width, d_out.height);
+        backdrop.check_size(width, height);
         assert_eq!(
             d_out.data.len(),
             width * height * 3,
@@ -310,8 +481,9 @@ impl Rasterizer {
         if self.bands.len() < band_count {
             self.bands.resize_with(band_count, Default::default);
         }
-        let rows_per_pass = backward::rows_per_pass(&self.flat, width, height);
-        let flat = &self.flat;
+        let CachedFlat { flat, areas, .. } = &self.flats[0];
+        let stored = (areas.size == Some((width, height))).then(|| &areas.strips[..band_count]);
+        let rows_per_pass = backward::rows_per_pass(flat, width, height);
         let pool = &self.pool;
         self.bands[..band_count]
             .par_iter_mut()
@@ -321,10 +493,11 @@ impl Rasterizer {
                 let job = backward::Band {
                     flat,
                     paths,
-                    base,
+                    backdrop,
                     d_out,
                     band,
                     rows_per_pass,
+                    stored: stored.map(|strips| &strips[band]),
                 };
                 job.run(grads, &mut scratch.backward, &mut scratch.coverage);
                 give(pool, scratch);
@@ -337,30 +510,21 @@ impl Rasterizer {
 }
 
 impl Rasterizer {
-    /// Flattens `paths` into `flat` unless `flat` already holds exactly this geometry.
+    /// Makes `flats[0]` the flattening of `paths`: a cached one if it holds this geometry,
+    /// else the least recently used slot refilled.
     fn build(&mut self, paths: &[Path]) {
-        let same = self.flat_source_shape.len() == paths.len()
-            && paths
-                .iter()
-                .zip(&self.flat_source_shape)
-                .all(|(p, &(n, ok))| p.points.len() == n && check_path(p).is_ok() == ok)
-            && paths
-                .iter()
-                .flat_map(|p| &p.points)
-                .eq(self.flat_source.iter());
-        if same {
-            return;
-        }
-        self.flat.build(paths, self.flattening);
-        self.flat_source.clear();
-        self.flat_source
-            .extend(paths.iter().flat_map(|p| p.points.iter().copied()));
-        self.flat_source_shape.clear();
-        self.flat_source_shape.extend(
-            paths
-                .iter()
-                .map(|p| (p.points.len(), check_path(p).is_ok())),
-        );
+        let k = match self.flats.iter().position(|c| c.holds(paths)) {
+            Some(k) => k,
+            None => {
+                if self.flats.len() < FLAT_CACHE {
+                    self.flats.push(CachedFlat::default());
+                }
+                let last = self.flats.len() - 1;
+                self.flats[last].fill(paths, self.flattening);
+                last
+            }
+        };
+        self.flats[..=k].rotate_right(1);
     }
 }
 
@@ -412,56 +576,81 @@ impl<T: Real> StripCoverage<T> {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn render_strip<T: Real>(
-    flat: &FlatScene<T>,
-    paths: &[Path],
-    base: [f32; 3],
+/// One strip of a forward render.
+struct StripJob<'a, T> {
+    flat: &'a FlatScene<T>,
+    paths: &'a [Path],
+    backdrop: Backdrop<'a>,
     width: usize,
     height: usize,
-    s: usize,
-    pixels: &mut [T],
-    scratch: &mut StripCoverage<T>,
-) {
-    let (row0, rows) = strip_rows(s, height);
-    let base = base.map(T::from_f32);
-    for px in pixels.chunks_exact_mut(3) {
-        px.copy_from_slice(&base);
-    }
-    scratch.prepare(width);
-    let stride = width + 2;
-    for (path, fp) in paths.iter().zip(&flat.paths) {
-        if fp.verts.is_empty() || path.opacity <= 0.0 || !meets_strip(fp.bbox, row0, rows, width) {
-            continue;
+    strip: usize,
+}
+
+impl<T: Real> StripJob<'_, T> {
+    /// Paints the strip into `pixels`; with `store`, also keeps every drawable path's signed
+    /// areas there (those of paths with zero opacity too: the backward needs them).
+    fn render(
+        &self,
+        pixels: &mut [T],
+        scratch: &mut StripCoverage<T>,
+        mut store: Option<&mut StripAreas<T>>,
+    ) {
+        let (flat, width) = (self.flat, self.width);
+        let (row0, rows) = strip_rows(self.strip, self.height);
+        self.backdrop.fill_rows(row0, width, pixels);
+        scratch.prepare(width);
+        if let Some(stored) = store.as_deref_mut() {
+            stored.clear();
         }
-        let verts = &flat.verts[fp.verts.clone()];
-        raster::accumulate(
-            verts,
-            row0 as i32,
-            rows,
-            width,
-            &mut scratch.delta,
-            &mut scratch.spans,
-        );
-        let (op, c) = (T::from_f32(path.opacity), path.color.map(T::from_f32));
-        for r in 0..rows {
-            let span = scratch.spans[r];
-            if span.len() == 0 {
+        let stride = width + 2;
+        for (i, (path, fp)) in self.paths.iter().zip(&flat.paths).enumerate() {
+            let paints = path.opacity > 0.0;
+            if fp.verts.is_empty()
+                || !(paints || store.is_some())
+                || !meets_strip(fp.bbox, row0, rows, width)
+            {
                 continue;
             }
-            let out = &mut pixels[r * width * 3..(r + 1) * width * 3];
-            raster::prefix_row(
-                &mut scratch.delta[r * stride..(r + 1) * stride],
-                span,
+            raster::accumulate(
+                flat.outline(i),
+                row0 as i32,
+                rows,
                 width,
-                |x, acc| {
-                    let a = acc.abs().min(T::ONE) * op;
-                    let p = &mut out[3 * x..3 * x + 3];
-                    p[0] += a * (c[0] - p[0]);
-                    p[1] += a * (c[1] - p[1]);
-                    p[2] += a * (c[2] - p[2]);
-                },
+                &mut scratch.delta,
+                &mut scratch.spans,
             );
+            if let Some(stored) = store.as_deref_mut() {
+                stored.paths.push(i as u32);
+            }
+            let (op, c) = (T::from_f32(path.opacity), path.color.map(T::from_f32));
+            for r in 0..rows {
+                let span = scratch.spans[r];
+                if let Some(stored) = store.as_deref_mut() {
+                    stored.spans.push(span);
+                    stored.offsets.push(stored.area.len() as u32);
+                }
+                if span.len() == 0 {
+                    continue;
+                }
+                let out = &mut pixels[r * width * 3..(r + 1) * width * 3];
+                let mut composite = |x: usize, acc: T| {
+                    if paints {
+                        let a = acc.abs().min(T::ONE) * op;
+                        let p = &mut out[3 * x..3 * x + 3];
+                        p[0] += a * (c[0] - p[0]);
+                        p[1] += a * (c[1] - p[1]);
+                        p[2] += a * (c[2] - p[2]);
+                    }
+                };
+                let delta = &mut scratch.delta[r * stride..(r + 1) * stride];
+                match store.as_deref_mut() {
+                    Some(stored) => raster::prefix_row(delta, span, width, |x, acc| {
+                        stored.area.push(acc);
+                        composite(x, acc);
+                    }),
+                    None => raster::prefix_row(delta, span, width, composite),
+                }
+            }
         }
     }
 }

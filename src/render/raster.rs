@@ -12,6 +12,7 @@
 //! `dL/dP1 = (−y′, x′)·Σ g(cell)∫t dt` with `(x′, y′) = P1 − P0`: only the cells the edge passes
 //! through matter, so the backward costs O(perimeter).
 
+use super::flatten::Outline;
 use super::real::Real;
 
 /// One row of the path's coverage inside a strip: cells `lo..end` hold its signed area; outside
@@ -131,7 +132,7 @@ fn cell<T: Real>(x: T) -> i32 {
 /// the span of cells whose coverage may be non-zero. `delta` must be zero on entry over the
 /// touched rows; [`prefix_row`] restores that.
 pub(crate) fn accumulate<T: Real>(
-    verts: &[[T; 2]],
+    outline: Outline<T>,
     row0: i32,
     rows: usize,
     width: usize,
@@ -145,8 +146,9 @@ pub(crate) fn accumulate<T: Real>(
     let mut hi = [i32::MIN; crate::render::STRIP_ROWS];
     let row_hi = row0 + rows as i32;
     let (y_lo, y_hi) = (T::from_i32(row0), T::from_i32(row_hi));
+    let verts = outline.verts;
     let n = verts.len();
-    for j in 0..n {
+    for j in outline.edges(|lo, hi| hi <= y_lo || lo >= y_hi) {
         let a = verts[j];
         let b = verts[if j + 1 == n { 0 } else { j + 1 }];
         if (a[1] <= y_lo && b[1] <= y_lo) || (a[1] >= y_hi && b[1] >= y_hi) {
@@ -210,7 +212,7 @@ pub(crate) fn prefix_row<T: Real>(
 /// area of cell), adds dL/d(vertex) of the closed polyline into `grad` (one entry per vertex).
 /// `g` must return 0 outside the canvas.
 pub(crate) fn backward_lines(
-    verts: &[[f32; 2]],
+    outline: Outline<f32>,
     row0: i32,
     rows: usize,
     width: usize,
@@ -220,8 +222,9 @@ pub(crate) fn backward_lines(
     let w = width as i32;
     let row_hi = row0 + rows as i32;
     let (y_lo, y_hi) = (row0 as f32, row_hi as f32);
+    let verts = outline.verts;
     let n = verts.len();
-    for j in 0..n {
+    for j in outline.edges(|lo, hi| hi < y_lo || lo >= y_hi) {
         let k = if j + 1 == n { 0 } else { j + 1 };
         let (a, b) = (verts[j], verts[k]);
         if (a[1] < y_lo && b[1] < y_lo) || (a[1] >= y_hi && b[1] >= y_hi) {
