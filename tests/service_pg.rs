@@ -94,7 +94,7 @@ fn finishes(log: &Path, id: &str) -> usize {
         .count()
 }
 
-/// Ten jobs submitted round-robin to two API replicas run on two workers: each succeeds
+/// Thirty jobs submitted round-robin to two API replicas run on three workers: each succeeds
 /// exactly once (one attempt, one `finished` in all the workers' logs), every replica serves
 /// every job, its events and its result, and the results are byte-identical to a
 /// single-process embedded run of the same inputs and seeds.
@@ -106,11 +106,9 @@ async fn jobs_spread_over_replicas_and_workers_run_once_with_the_embedded_result
         api(&files, "api-0", &postgres),
         api(&files, "api-1", &postgres),
     ];
-    let _workers = [
-        worker(&files, "worker-0", &postgres),
-        worker(&files, "worker-1", &postgres),
-    ];
-    let inputs: Vec<(Vec<u8>, String)> = (0..10)
+    const WORKERS: [&str; 3] = ["worker-0", "worker-1", "worker-2"];
+    let _workers = WORKERS.map(|name| worker(&files, name, &postgres));
+    let inputs: Vec<(Vec<u8>, String)> = (0..30)
         .map(|index| (test_png(32 + 8 * (index % 3)), quick_params(index)))
         .collect();
     let mut ids = Vec::new();
@@ -136,16 +134,16 @@ async fn jobs_spread_over_replicas_and_workers_run_once_with_the_embedded_result
         results.push(svg.body);
     }
     for id in &ids {
-        let runs: usize = ["worker-0", "worker-1"]
+        let runs: usize = WORKERS
             .iter()
             .map(|name| finishes(&files.0.with_extension(format!("{name}.log")), id))
             .sum();
         assert_eq!(runs, 1, "job {id} finished {runs} times");
     }
-    // Both replicas list all ten, and the queue is empty.
+    // Both replicas list all thirty, and the queue is empty.
     for api in &apis {
-        let listed = api.get("/v1/jobs?limit=20").await.json();
-        assert_eq!(listed["items"].as_array().unwrap().len(), 10, "{listed}");
+        let listed = api.get("/v1/jobs?limit=50").await.json();
+        assert_eq!(listed["items"].as_array().unwrap().len(), 30, "{listed}");
     }
     assert_eq!(
         postgres.query("SELECT count(*) FROM jobs WHERE status <> 'succeeded'"),
