@@ -25,8 +25,8 @@ pub struct JobArgs {
     #[arg(long, env = "COVEC_OBJECT_STORE")]
     object_store: Option<String>,
     /// Keep job records, the queue and idempotency keys in this PostgreSQL database
-    /// (`postgres://user:password@host:port/db`, no TLS), shared by API replicas and
-    /// `covec worker`s, instead of SQLite in the data directory.
+    /// (`postgres://user:password@host:port/db`; TLS by libpq's `sslmode` and `sslrootcert`),
+    /// shared by API replicas and `covec worker`s, instead of SQLite in the data directory.
     #[arg(long, env = "COVEC_DATABASE_URL", hide_env_values = true)]
     database_url: Option<String>,
     /// Jobs run at once; the pipeline threads are shared out among them. With

@@ -21,10 +21,11 @@ use std::str::FromStr;
 use std::time::{Duration, SystemTime};
 
 use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
-use tokio_postgres::{NoTls, Row};
+use tokio_postgres::Row;
 
-use super::error::StoreError;
+use super::error::{StoreError, with_sources};
 use super::parse_record;
+use super::postgres_tls::TlsSettings;
 use crate::service::error::Problem;
 use crate::service::model::{JobRecord, Status};
 
@@ -105,20 +106,17 @@ pub enum Change {
 }
 
 impl Postgres {
-    /// Connects (checking the server answers) and applies pending migrations.
+    /// Connects (checking the server answers), over TLS as `url` asks ([`TlsSettings`]), and
+    /// applies pending migrations.
     pub fn connect(url: &str) -> Result<Self, StoreError> {
-        let config = tokio_postgres::Config::from_str(url).map_err(|error| {
+        let (tls, url) = TlsSettings::take_from(url)?;
+        let mut config = tokio_postgres::Config::from_str(&url).map_err(|error| {
             StoreError::DatabaseUrl(format!("not a PostgreSQL connection string: {error}"))
         })?;
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .thread_name("covec-postgres")
-            .enable_all()
-            .build()
-            .map_err(|error| StoreError::DatabaseUrl(format!("runtime: {error}")))?;
+        config.ssl_mode(tls.ssl_mode());
         let manager = Manager::from_config(
             config,
-            NoTls,
+            tls.connector()?,
             ManagerConfig {
                 recycling_method: RecyclingMethod::Fast,
             },
@@ -130,6 +128,14 @@ impl Postgres {
             .create_timeout(Some(CONNECT_WAIT))
             .build()
             .map_err(|error| StoreError::DatabaseUrl(error.to_string()))?;
+        // Made last: from here on an error drops it through `Drop` (callers may be inside
+        // another runtime, where dropping one plainly panics).
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("covec-postgres")
+            .enable_all()
+            .build()
+            .map_err(|error| StoreError::DatabaseUrl(format!("runtime: {error}")))?;
         let postgres = Self {
             pool,
             runtime: Some(runtime),
@@ -152,7 +158,7 @@ impl Postgres {
         runtime.spawn(async move {
             let result = match pool.get().await {
                 Ok(client) => request(client).await,
-                Err(error) => Err(StoreError::DatabasePool(error.to_string())),
+                Err(error) => Err(StoreError::DatabasePool(with_sources(&error))),
             };
             let _ = answer.send(result);
         });
