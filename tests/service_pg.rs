@@ -11,7 +11,7 @@ use std::time::Duration;
 use hyper::StatusCode;
 use serde_json::Value;
 use service_support::postgres::{Postgres, Worker};
-use service_support::{DataDir, LONG_PARAMS, Server, test_png};
+use service_support::{DataDir, LONG_PARAMS, Server, problem, test_png};
 
 /// Parameters of a quick job with this seed.
 fn quick_params(seed: u32) -> String {
@@ -303,8 +303,9 @@ async fn a_job_is_failed_after_its_last_attempt() {
     assert_eq!(job["attempts"], 3, "{job}");
 }
 
-/// PostgreSQL restarted while a job runs: the worker and the API replica reconnect, the job
-/// still succeeds, and the replica takes new jobs.
+/// PostgreSQL stopped and started again while a job runs: meanwhile the replica answers for
+/// the job it knows and an error (not 404) for one it cannot look up; then the worker and the
+/// replica reconnect, the job still succeeds, and the replica takes new jobs.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_database_restart_loses_no_job() {
     let mut postgres = Postgres::start();
@@ -318,7 +319,17 @@ async fn a_database_restart_loses_no_job() {
             job["status"] == "running"
         })
         .await;
-    postgres.restart();
+    postgres.stop();
+    // The replica's copy still answers for the job; one it has never seen cannot be looked
+    // up, which is an error, not a 404 (the job may well exist).
+    let known = server.get(&format!("/v1/jobs/{id}")).await;
+    assert_eq!(known.status, StatusCode::OK, "{}", known.text());
+    let unknown = server
+        .get(&format!("/v1/jobs/job_{}", "0".repeat(32)))
+        .await;
+    assert_eq!(unknown.status, StatusCode::INTERNAL_SERVER_ERROR);
+    assert_eq!(problem(&unknown)["code"], "internal", "{}", unknown.text());
+    postgres.start_again();
     let job = ended(&server, &id, Duration::from_secs(120)).await;
     assert_eq!(job["status"], "succeeded", "{job}");
     let id = submit(&server, &test_png(32), &quick_params(2)).await;

@@ -284,8 +284,10 @@ impl Webhooks {
         }
     }
 
+    /// Whether the job is still there: this replica admitted it, so its copy has it until it
+    /// is deleted anywhere.
     fn exists(&self, entry: &JobEntry) -> bool {
-        self.queue.get(&entry.id, &entry.owner).is_some()
+        self.queue.cached(&entry.id).is_some()
     }
 
     /// Attempts one event's delivery until it is delivered or out of attempts.

@@ -146,11 +146,17 @@ impl Postgres {
     /// port and data; returns once it accepts connections.
     pub fn restart(&mut self) {
         self.stop();
+        self.start_again();
+    }
+
+    /// Starts the stopped server again; returns once it accepts connections.
+    pub fn start_again(&mut self) {
         self.child = spawn_server(&self.dir.0, self.port, &self.settings);
         self.wait_ready();
     }
 
-    fn stop(&mut self) {
+    /// Stops the server (fast shutdown: connections are cut).
+    pub fn stop(&mut self) {
         // SIGINT: PostgreSQL's fast shutdown.
         // SAFETY: a signal to our own child.
         unsafe {
