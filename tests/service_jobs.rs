@@ -797,3 +797,30 @@ async fn png_flattened_svg_and_pdf_are_served_as_the_cli_makes_them() {
         assert_eq!(reply.header("content-encoding"), None, "{result}");
     }
 }
+
+/// `--log-format json`: every line on stderr is one JSON object a log collector can read, and a
+/// job's lines carry its id.
+#[tokio::test]
+async fn json_logs_are_one_object_per_line() {
+    let dir = DataDir::new("json-logs");
+    let server = Server::start(&dir.0, &["--workers", "1", "--log-format", "json"]);
+    let id = submit_quick(&server).await;
+    let job = server.wait_for(&id, PATIENCE, terminal).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    server.stop();
+    let log = std::fs::read_to_string(dir.0.with_extension("log")).unwrap();
+    let lines: Vec<serde_json::Value> = log
+        .lines()
+        .map(|line| serde_json::from_str(line).unwrap_or_else(|error| panic!("{error}: {line:?}")))
+        .collect();
+    assert!(
+        lines.iter().all(|line| line["level"].is_string()
+            && line["timestamp"].is_string()
+            && line["fields"].is_object()),
+        "{log}"
+    );
+    assert!(
+        lines.iter().any(|line| line.to_string().contains(&id)),
+        "no line names the job: {log}"
+    );
+}
