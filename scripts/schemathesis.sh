@@ -8,7 +8,7 @@
 #
 #   scripts/schemathesis.sh [PATH/TO/covec] [extra schemathesis options…]
 #
-# Without a binary it builds one. Exits non-zero when schemathesis finds a failure.
+# Without a binary it builds one (the dev profile, as the tests use). Exits non-zero when schemathesis finds a failure.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -23,8 +23,8 @@ if [[ $# -gt 0 && -x "$1" ]]; then
     covec=$1
     shift
 else
-    cargo build --quiet --release --bin covec
-    covec="${CARGO_TARGET_DIR:-target}/release/covec"
+    cargo build --quiet --bin covec
+    covec="${CARGO_TARGET_DIR:-target}/debug/covec"
 fi
 
 work=$(mktemp -d)
