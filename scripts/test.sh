@@ -43,6 +43,12 @@ if [[ -z "${COVEC_SKIP_PG_PASS:-}" ]]; then
          and not test(/^(a_corrupt_job_record|orphaned_job_directories|deleted_jobs_stay_deleted|deletes_on_a_full|results_live_in_the_bucket)/)'
 fi
 
+# The running service against api/openapi.yaml with schemathesis: every check, every phase
+# (README, "The HTTP service"; about 30 s). COVEC_SKIP_SCHEMATHESIS=1 skips it.
+if [[ -z "${COVEC_SKIP_SCHEMATHESIS:-}" ]]; then
+    scripts/schemathesis.sh
+fi
+
 # Every fuzz target for a short, bounded time (README, "Fuzzing"). COVEC_SKIP_FUZZ=1 skips it.
 if [[ -z "${COVEC_SKIP_FUZZ:-}" ]]; then
     scripts/fuzz.sh 20
