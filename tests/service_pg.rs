@@ -457,3 +457,61 @@ fn worker_start_error(files: &DataDir, database_url: &str) -> String {
     assert!(!output.status.success());
     String::from_utf8(output.stderr).unwrap()
 }
+
+/// `covec worker --ops-addr`: liveness, readiness (not ready while the database is down) and
+/// the job metrics of that worker.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_worker_serves_probes_and_metrics() {
+    let mut postgres = Postgres::start();
+    let files = DataDir::plain("pg-ops");
+    let server = api(&files, "api", &postgres);
+    let worker = Worker::start(
+        &files.0,
+        &files.0.with_extension("worker.log"),
+        &[
+            "--database-url",
+            &postgres.url,
+            "--threads",
+            "1",
+            "--ops-addr",
+            "127.0.0.1:0",
+        ],
+    );
+    let ops = worker.ops_url.clone().unwrap();
+    assert_eq!(http_get(&ops, "/healthz").0, 200);
+    assert_eq!(http_get(&ops, "/readyz").0, 200);
+    let id = submit(&server, &test_png(32), &quick_params(3)).await;
+    let job = ended(&server, &id, Duration::from_secs(60)).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let (status, metrics) = http_get(&ops, "/metrics");
+    assert_eq!(status, 200);
+    assert!(metrics.contains("covec_workers 1"), "{metrics}");
+    assert!(
+        metrics.contains("covec_job_duration_seconds_count{outcome=\"succeeded\"} 1"),
+        "{metrics}"
+    );
+    postgres.stop();
+    let (status, body) = http_get(&ops, "/readyz");
+    assert_eq!(status, 503, "{body}");
+    assert!(body.contains("job database"), "{body}");
+    postgres.start_again();
+}
+
+/// (status, body) of `GET url+path`, over a plain blocking connection.
+fn http_get(url: &str, path: &str) -> (u16, String) {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(url.trim_start_matches("http://")).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(30)))
+        .unwrap();
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: covec\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut reply = String::new();
+    stream.read_to_string(&mut reply).unwrap();
+    let status = reply[9..12].parse().unwrap();
+    let body = reply.split_once("\r\n\r\n").map_or("", |(_, body)| body);
+    (status, body.to_owned())
+}

@@ -229,6 +229,10 @@ impl ServeArgs {
 /// `covec worker`: runs queued jobs from the PostgreSQL backend, with no HTTP API.
 #[derive(Args, Debug)]
 pub struct WorkerArgs {
+    /// Serve `/healthz`, `/readyz` and `/metrics` on this address, for probes and scraping
+    /// (the address is printed on stdout); none by default.
+    #[arg(long, env = "COVEC_OPS_ADDR")]
+    ops_addr: Option<SocketAddr>,
     #[command(flatten)]
     jobs: JobArgs,
     #[command(flatten)]
@@ -260,7 +264,10 @@ pub fn work(args: WorkerArgs) -> ExitCode {
     };
     let mut config = Config::default();
     args.jobs.apply(&mut config);
-    match runtime.block_on(service::work(config)) {
+    let serving = service::work(config, args.ops_addr, |addr| {
+        println!("covec worker: probes and metrics on http://{addr}");
+    });
+    match runtime.block_on(serving) {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
             eprintln!("covec worker: {error}");

@@ -361,8 +361,14 @@ pub async fn serve(
 /// Runs `covec worker`: job slots on the shared backend ([`worker::Workers`]), without an
 /// HTTP API, until SIGINT/SIGTERM; then running jobs finish for `shutdown_grace` or go back to
 /// the queue. Uses the data directory or object store, the database, the queue's workers,
-/// threads, time limit, retention and lease, and the input limits of `config`.
-pub async fn work(config: Config) -> Result<(), ServeError> {
+/// threads, time limit, retention and lease, the input and connection limits of `config`.
+/// Given `ops_addr`, serves the worker's probes and metrics there
+/// ([`worker::Workers::ops_app`]); `on_listening` gets the bound address.
+pub async fn work(
+    config: Config,
+    ops_addr: Option<SocketAddr>,
+    on_listening: impl FnOnce(SocketAddr),
+) -> Result<(), ServeError> {
     let Some(database_url) = config.database_url.as_deref() else {
         return Err(ServeError::Workers(worker::WorkerError::NotShared));
     };
@@ -371,7 +377,8 @@ pub async fn work(config: Config) -> Result<(), ServeError> {
         config.object_store.as_deref(),
         Some(database_url),
     )?);
-    // Job durations are recorded here too (no `/metrics` on a worker), so the samples need upkeep.
+    // Job durations are recorded here (for `/metrics` on the ops port, if any), so the samples
+    // need upkeep.
     let metrics = Arc::new(Metrics::default());
     let metrics_upkeep = tokio::spawn(ops::upkeep(metrics.clone()));
     let runner = Arc::new(runner::Runner {
@@ -395,12 +402,39 @@ pub async fn work(config: Config) -> Result<(), ServeError> {
         },
     )?;
     tracing::info!(slots, "worker started");
+    let (stopping, stopped) = tokio::sync::watch::channel(false);
+    let ops_port = match ops_addr {
+        Some(addr) => {
+            let listener = tokio::net::TcpListener::bind(addr)
+                .await
+                .map_err(|source| ServeError::Bind { addr, source })?;
+            let addr = listener.local_addr()?;
+            tracing::info!(%addr, "probes and metrics");
+            on_listening(addr);
+            let app = workers.ops_app();
+            Some(tokio::spawn(conn::accept(
+                listener,
+                app,
+                config.connections,
+                stopped,
+            )))
+        }
+        None => None,
+    };
     stop_signal().await;
     tracing::info!("shutting down: no new jobs");
     let grace = config.shutdown_grace;
     tokio::task::spawn_blocking(move || workers.drain(grace))
         .await
         .map_err(std::io::Error::other)?;
+    // Probes answered "not ready" while the jobs drained; now the port closes.
+    stopping.send_replace(true);
+    if let Some(Ok(connections)) = match ops_port {
+        Some(port) => Some(port.await),
+        None => None,
+    } {
+        conn::close(connections, Duration::from_secs(1)).await;
+    }
     metrics_upkeep.abort();
     tracing::info!("stopped");
     Ok(())

@@ -12,6 +12,7 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusRecorder};
 
+use super::store::StoreError;
 use super::{AppState, Endpoint, endpoint};
 
 pub fn endpoints() -> Vec<Endpoint> {
@@ -23,19 +24,26 @@ pub fn endpoints() -> Vec<Endpoint> {
 }
 
 /// Liveness: the process answers.
-async fn healthz() -> impl IntoResponse {
+pub async fn healthz() -> impl IntoResponse {
     axum::Json(serde_json::json!({ "status": "ok" }))
 }
 
 /// Readiness: storage writable, every worker alive, not shutting down.
 async fn readyz(State(state): State<AppState>) -> Response {
     let queue = state.queue.clone();
-    let storage = tokio::task::spawn_blocking(move || {
-        queue.store().check().map_err(|error| error.public_detail())
-    })
-    .await
-    .unwrap_or_else(|error| Err(error.to_string()));
-    let workers = state.queue.is_ready();
+    readiness(move || queue.store().check(), state.queue.is_ready()).await
+}
+
+/// The readiness answer (API and worker): 200 when `check_storage` passes (run off the async
+/// threads) and `workers` are alive, else 503 saying which is not.
+pub async fn readiness(
+    check_storage: impl FnOnce() -> Result<(), StoreError> + Send + 'static,
+    workers: bool,
+) -> Response {
+    let storage =
+        tokio::task::spawn_blocking(move || check_storage().map_err(|error| error.public_detail()))
+            .await
+            .unwrap_or_else(|error| Err(error.to_string()));
     let ready = storage.is_ok() && workers;
     let body = serde_json::json!({
         "status": if ready { "ready" } else { "not ready" },
@@ -51,18 +59,26 @@ async fn readyz(State(state): State<AppState>) -> Response {
 }
 
 async fn metrics(State(state): State<AppState>) -> Response {
-    let (queued, running) = state.queue.depth();
-    let text = state.metrics.render(&[
-        (JOBS_QUEUED, queued as f64),
-        (JOBS_RUNNING, running as f64),
-        (WORKERS, state.queue.workers() as f64),
-    ]);
+    metrics_text(
+        &state.metrics,
+        Some(state.queue.depth()),
+        state.queue.workers(),
+    )
+}
+
+/// The `/metrics` answer: what `metrics` recorded, with the queue's (queued, running) depth
+/// where known (API processes) and the number of job workers.
+pub fn metrics_text(metrics: &Metrics, depth: Option<(usize, usize)>, workers: usize) -> Response {
+    let mut gauges = vec![(WORKERS, workers as f64)];
+    if let Some((queued, running)) = depth {
+        gauges.extend([(JOBS_QUEUED, queued as f64), (JOBS_RUNNING, running as f64)]);
+    }
     (
         [(
             header::CONTENT_TYPE,
             "text/plain; version=0.0.4; charset=utf-8",
         )],
-        text,
+        metrics.render(&gauges),
     )
         .into_response()
 }

@@ -15,8 +15,14 @@ use std::time::{Duration, Instant};
 
 use tracing::{info, info_span, warn};
 
+use axum::Router;
+use axum::extract::State;
+use axum::response::Response;
+use axum::routing::get;
+
 use super::error::ApiError;
 use super::model::CancelReason;
+use super::ops;
 use super::runner::{JobEntry, Runner, Settled, job_pool, lock};
 use super::store::{Beat, Claim, MAX_ATTEMPTS, Postgres, retry_transient};
 
@@ -107,6 +113,25 @@ impl Workers {
             lock(&workers.handles).push(handle);
         }
         Ok(workers)
+    }
+
+    /// The worker's own HTTP port (`covec worker --ops-addr`), for probes and scraping:
+    /// `/healthz`, `/readyz` (storage reachable, every slot alive, not draining) and
+    /// `/metrics` (job durations and outcomes, `covec_workers`; the queue's depth is on the
+    /// API replicas').
+    pub fn ops_app(self: &Arc<Self>) -> Router {
+        async fn ready(State(workers): State<Arc<Workers>>) -> Response {
+            let runner = Arc::clone(&workers.runner);
+            ops::readiness(move || runner.store.check(), workers.is_ready()).await
+        }
+        async fn metrics(State(workers): State<Arc<Workers>>) -> Response {
+            ops::metrics_text(&workers.runner.metrics, None, workers.slots)
+        }
+        Router::new()
+            .route("/healthz", get(ops::healthz))
+            .route("/readyz", get(ready))
+            .route("/metrics", get(metrics))
+            .with_state(Arc::clone(self))
     }
 
     /// Every slot is alive and taking work.

@@ -238,22 +238,36 @@ fn spawn_server(dir: &Path, port: u16, settings: &[String]) -> Child {
 /// A `covec worker` process, killed on drop.
 pub struct Worker {
     child: Child,
+    /// `http://host:port` of its probes and metrics, when started with `--ops-addr`.
+    pub ops_url: Option<String>,
 }
 
 impl Worker {
-    /// Starts `covec worker --data-dir DIR ARGS…`, logging to `log_path`.
+    /// Starts `covec worker --data-dir DIR ARGS…`, logging to `log_path`; with
+    /// `--ops-addr` among the arguments, waits for the address it prints.
     pub fn start(data_dir: &Path, log_path: &Path, args: &[&str]) -> Self {
         let log = std::fs::File::create(log_path).unwrap();
-        let child = Command::new(env!("CARGO_BIN_EXE_covec"))
+        let mut child = Command::new(env!("CARGO_BIN_EXE_covec"))
             .args(["worker", "--data-dir"])
             .arg(data_dir)
             .args(args)
             .env("COVEC_LOG", "info")
-            .stdout(Stdio::null())
+            .stdout(Stdio::piped())
             .stderr(log)
             .spawn()
             .expect("start covec worker");
-        Self { child }
+        let ops_url = args.contains(&"--ops-addr").then(|| {
+            let mut line = String::new();
+            std::io::BufRead::read_line(
+                &mut std::io::BufReader::new(child.stdout.take().unwrap()),
+                &mut line,
+            )
+            .unwrap();
+            let url = line.trim().rsplit(' ').next().unwrap_or_default();
+            assert!(url.starts_with("http://"), "covec worker said {line:?}");
+            url.to_owned()
+        });
+        Self { child, ops_url }
     }
 
     /// SIGKILL: the worker dies at once, mid-job, leaving its lease to expire.
