@@ -132,7 +132,11 @@ impl JobArgs {
         scheduling.limits.running =
             (self.max_running_per_key > 0).then_some(self.max_running_per_key);
         scheduling.limits.per_minute = std::num::NonZeroU32::new(self.rate_per_key);
-        for entry in self.key_limits.iter().filter(|entry| !entry.trim().is_empty()) {
+        for entry in self
+            .key_limits
+            .iter()
+            .filter(|entry| !entry.trim().is_empty())
+        {
             scheduling.override_limit(entry)?;
         }
         Ok(())

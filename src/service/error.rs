@@ -83,9 +83,7 @@ pub enum ApiError {
     IdempotencyMismatch,
     #[error("the job queue is full ({0} jobs); retry later")]
     QueueFull(usize, u64),
-    #[error(
-        "this key has {actual} jobs queued, its limit is {limit}; retry once one has started"
-    )]
+    #[error("this key has {actual} jobs queued, its limit is {limit}; retry once one has started")]
     KeyQueueFull {
         limit: u64,
         actual: u64,
@@ -215,9 +213,7 @@ impl ApiError {
             | ApiError::KeyQueueFull { limit, actual, .. } => (Some(*limit), Some(*actual)),
             ApiError::BodyTooLarge { limit }
             | ApiError::TooManyLabels { limit }
-            | ApiError::RateLimited { limit, .. } => {
-                (Some(*limit), None)
-            }
+            | ApiError::RateLimited { limit, .. } => (Some(*limit), None),
             _ => (None, None),
         };
         Problem {

@@ -286,7 +286,10 @@ impl FairQueue {
                         (None, Some(head)) => (1, *head),
                         (None, None) => return None,
                     };
-                    Some(((lane.blocked, class, lane.running, lane.served, head), index))
+                    Some((
+                        (lane.blocked, class, lane.running, lane.served, head),
+                        index,
+                    ))
                 })
                 .min_by(|a, b| a.0.cmp(&b.0));
             let Some(((blocked, class, ..), index)) = best else {

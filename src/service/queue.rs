@@ -692,6 +692,7 @@ impl Queue {
             Canceled::Stopping | Canceled::Nothing => postgres.get(&entry.id)?,
         };
         if let Some(current) = current {
+            lock(&self.state).fair.track(&current);
             entry.record.send_replace(current);
         }
         Ok(matches!(outcome, Canceled::Stopping))

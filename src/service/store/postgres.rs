@@ -560,7 +560,8 @@ impl Postgres {
                              cancel_requested = false, lease_owner = $1,
                              lease_expires_at = clock_timestamp() + make_interval(secs => $2)
                          WHERE id = $3
-                         RETURNING {RECORD_COLUMNS}, client"
+                         RETURNING {RECORD_COLUMNS}, client,
+                             (extract(epoch FROM now()) * 1000)::bigint"
                     ),
                     &[&token, &lease.as_secs_f64(), &id],
                 )
@@ -575,7 +576,9 @@ impl Postgres {
                 .await?;
             transaction.commit().await?;
             let mut record = record_of(&row)?;
-            record.started_at = Some(crate::service::model::now_ms());
+            // When the claim began, before it chose: a job submitted later was not there to
+            // choose.
+            record.started_at = Some(row.get::<_, i64>(6).max(0) as u64);
             Ok(Some(Claim { record, token }))
         })
     }
