@@ -8,9 +8,9 @@
 //! change made anywhere into the copy every [`FOLLOW_EVERY`], so polls, listings and SSE on
 //! any replica see jobs running on any worker.
 //!
-//! Embedded: `workers` runner threads take queued jobs by the fair rule ([`super::fair`]); each runs its job's pipeline
-//! inside its own rayon pool (`threads / workers` threads), so the async runtime never runs
-//! pipeline work. One pool per job slot rather than one shared pool: in a shared pool a thread
+//! Embedded: `workers` runner threads take queued jobs by the fair rule ([`super::fair`]);
+//! each runs its job's pipeline inside its own rayon pool (`threads / workers` threads), so the
+//! async runtime never runs pipeline work. One pool per job slot rather than one shared pool: in a shared pool a thread
 //! waiting inside one job's parallel loop may pick up another whole job (rayon work-stealing),
 //! stalling the first job, and its cancellation, until the second ends.
 
