@@ -16,13 +16,13 @@ use service_support::{DataDir, LONG_PARAMS, Server, problem, test_png};
 const JOB_PARAMS: &str = r#"{"paths": 8, "max_size": 48, "seed": 1,
   "iterations": {"structure": 60, "reconstruction": 60, "refine_rounds": 1, "refine": 60, "polish": 60}}"#;
 
-/// One worker, room for the test's jobs, API keys `a`, `b` and `c`.
-fn server(dir: &DataDir, extra: &[&str]) -> Server {
+/// `workers` job slots of one thread each, room for the test's jobs, API keys `a`, `b`, `c`.
+fn server(dir: &DataDir, workers: &str, extra: &[&str]) -> Server {
     let mut args = vec![
         "--workers",
-        "1",
+        workers,
         "--threads",
-        "1",
+        workers,
         "--max-queued",
         "200",
         "--max-iterations",
@@ -129,7 +129,7 @@ fn now_ms() -> u64 {
 #[tokio::test(flavor = "multi_thread")]
 async fn a_second_key_is_served_in_turn_not_after_the_first_keys_backlog() {
     let dir = DataDir::new("fair-turns");
-    let server = server(&dir, &[]);
+    let server = server(&dir, "1", &[]);
     for _ in 0..60 {
         submit(&server, "a", JOB_PARAMS, None).await;
     }
@@ -178,7 +178,7 @@ async fn a_second_key_is_served_in_turn_not_after_the_first_keys_backlog() {
 #[tokio::test(flavor = "multi_thread")]
 async fn an_interactive_job_starts_next_ahead_of_sixty_batch_jobs() {
     let dir = DataDir::new("fair-priority");
-    let server = server(&dir, &[]);
+    let server = server(&dir, "1", &[]);
     let mut batch = Vec::new();
     for _ in 0..60 {
         batch.push(submit(&server, "a", JOB_PARAMS, Some("batch")).await);
@@ -235,6 +235,7 @@ async fn a_key_over_its_limits_gets_429_and_other_keys_go_on() {
     let dir = DataDir::new("fair-limits");
     let server = server(
         &dir,
+        "1",
         &[
             "--max-queued-per-key",
             "5",
@@ -352,4 +353,27 @@ async fn a_key_over_its_limits_gets_429_and_other_keys_go_on() {
         assert_eq!(reply.status, expected, "{client:?}: {}", reply.text());
     }
     open.cancel(&hold_id).await;
+}
+
+/// With two workers and `--max-running-per-key 1`, key `a`'s jobs run one at a time (each
+/// starts once the one before has ended) while key `b`'s job runs beside them.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_key_at_its_running_limit_runs_one_job_at_a_time() {
+    let dir = DataDir::new("fair-running");
+    let server = server(&dir, "2", &["--max-running-per-key", "1"]);
+    let mut a = Vec::new();
+    for _ in 0..4 {
+        a.push(submit(&server, "a", JOB_PARAMS, None).await);
+    }
+    let b = submit(&server, "b", JOB_PARAMS, None).await;
+    let ended = |job: &Value| job["status"] == "succeeded";
+    let mut a_jobs = wait_all(&server, "a", &a, ended).await;
+    wait_all(&server, "b", std::slice::from_ref(&b), ended).await;
+    a_jobs.sort_by_key(|job| unix_ms(job, "started_at"));
+    for pair in a_jobs.windows(2) {
+        assert!(
+            unix_ms(&pair[1], "started_at") >= unix_ms(&pair[0], "completed_at"),
+            "two of a's jobs ran at once: {pair:?}"
+        );
+    }
 }

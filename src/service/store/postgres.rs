@@ -535,7 +535,8 @@ impl Postgres {
                      ), limits AS (
                          SELECT * FROM unnest($1::text[], $2::bigint[]) AS l (client, running)
                      )
-                     SELECT j.id FROM jobs j
+                     SELECT j.id, (extract(epoch FROM statement_timestamp()) * 1000)::bigint
+                     FROM jobs j
                          LEFT JOIN running r ON r.client = j.client
                          LEFT JOIN limits l ON l.client = j.client
                          LEFT JOIN queue_clients s ON s.client = j.client
@@ -553,6 +554,9 @@ impl Postgres {
                 return Ok(None);
             };
             let id: String = picked.get(0);
+            // When the choice was made (the statement's start, when it saw the queue): a job
+            // submitted after it was not there to choose.
+            let chosen_at = picked.get::<_, i64>(1).max(0) as u64;
             let row = transaction
                 .query_one(
                     &format!(
@@ -560,8 +564,7 @@ impl Postgres {
                              cancel_requested = false, lease_owner = $1,
                              lease_expires_at = clock_timestamp() + make_interval(secs => $2)
                          WHERE id = $3
-                         RETURNING {RECORD_COLUMNS}, client,
-                             (extract(epoch FROM now()) * 1000)::bigint"
+                         RETURNING {RECORD_COLUMNS}, client"
                     ),
                     &[&token, &lease.as_secs_f64(), &id],
                 )
@@ -576,9 +579,7 @@ impl Postgres {
                 .await?;
             transaction.commit().await?;
             let mut record = record_of(&row)?;
-            // When the claim began, before it chose: a job submitted later was not there to
-            // choose.
-            record.started_at = Some(row.get::<_, i64>(6).max(0) as u64);
+            record.started_at = Some(chosen_at);
             Ok(Some(Claim { record, token }))
         })
     }
