@@ -233,6 +233,16 @@ impl FairQueue {
         Some(ahead)
     }
 
+    /// Every waiting job's [`FairQueue::position`], in one pass of the rule.
+    pub fn positions(&self, policy: &Scheduling, now: u64) -> HashMap<String, usize> {
+        let mut positions = HashMap::with_capacity(self.waiting.len());
+        self.schedule(policy, now, |id, _| {
+            positions.insert(id.to_owned(), positions.len());
+            true
+        });
+        positions
+    }
+
     /// Mean run time of recent successes, in ms.
     pub fn mean_run_ms(&self) -> Option<u64> {
         let count = self.recent.len() as u64;
@@ -435,6 +445,13 @@ mod tests {
         let last_a = &jobs[3].id;
         assert_eq!(queue.position(&jobs[6].id, &policy, now), Some(0));
         assert_eq!(queue.position(last_a, &policy, now), Some(6));
+        let positions = queue.positions(&policy, now);
+        for job in &jobs {
+            assert_eq!(
+                positions.get(&job.id).copied(),
+                queue.position(&job.id, &policy, now)
+            );
+        }
         assert_eq!(run_all(&mut queue, &jobs, &policy, now), "cababaa");
 
         // A batch job older than the batch age counts as interactive: it goes before a newer

@@ -10,9 +10,10 @@
 //!
 //! Embedded: `workers` runner threads take queued jobs by the fair rule ([`super::fair`]);
 //! each runs its job's pipeline inside its own rayon pool (`threads / workers` threads), so the
-//! async runtime never runs pipeline work. One pool per job slot rather than one shared pool: in a shared pool a thread
-//! waiting inside one job's parallel loop may pick up another whole job (rayon work-stealing),
-//! stalling the first job, and its cancellation, until the second ends.
+//! async runtime never runs pipeline work. One pool per job slot rather than one shared pool:
+//! in a shared pool a thread waiting inside one job's parallel loop may pick up another whole
+//! job (rayon work-stealing), stalling the first job, and its cancellation, until the second
+//! ends.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -427,16 +428,21 @@ impl Queue {
     fn placement_in(&self, state: &State, id: &str) -> Option<Placement> {
         let now = now_ms();
         let position = state.fair.position(id, &self.config.scheduling, now)?;
+        Some(self.placement_at(state, position, now))
+    }
+
+    /// The placement of the job `position` jobs from the front, at `now`.
+    fn placement_at(&self, state: &State, position: usize, now: u64) -> Placement {
         let running = state.fair.depth().1;
         let workers = running.max(self.config.workers).max(1);
         let estimated_start_at = state.fair.mean_run_ms().map(|mean| {
             let jobs_ahead = position as f64 + running as f64 / 2.0;
             now + (jobs_ahead * mean as f64 / workers as f64) as u64
         });
-        Some(Placement {
+        Placement {
             position,
             estimated_start_at,
-        })
+        }
     }
 
     /// A page of `owner`'s jobs, newest first, strictly older than `before`, and whether more
@@ -468,14 +474,25 @@ impl Queue {
             }
         }
         let state = lock(&self.state);
-        let page = ids
+        let records: Vec<JobRecord> = ids
             .iter()
             .filter_map(|id| state.jobs.get(id))
             .map(|entry| entry.snapshot())
             // The live state wins over a stored status a failed write left behind.
             .filter(|record| status.is_none_or(|status| record.status == status))
+            .collect();
+        // One pass of the rule places every queued job of the page.
+        let now = now_ms();
+        let positions = match records.iter().any(|r| r.status == Status::Queued) {
+            true => state.fair.positions(&self.config.scheduling, now),
+            false => HashMap::new(),
+        };
+        let page = records
+            .into_iter()
             .map(|record| {
-                let placement = self.placement_in(&state, &record.id);
+                let placement = positions
+                    .get(&record.id)
+                    .map(|&position| self.placement_at(&state, position, now));
                 (record, placement)
             })
             .collect();
@@ -801,7 +818,7 @@ impl Queue {
         }
     }
 
-    /// A runner thread: takes queued jobs in order until draining.
+    /// A runner thread: takes queued jobs by the fair rule until draining.
     fn run_jobs(self: Arc<Self>, pool: &rayon::ThreadPool) {
         loop {
             let mut state = lock(&self.state);
