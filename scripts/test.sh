@@ -36,12 +36,17 @@ cargo nextest run --no-fail-fast --cargo-profile test "$@"
 # The service tests again on the shared backend (README, "Scaling out"): every test data directory
 # gets its own throwaway PostgreSQL (tests/service_support). Left out, what only the embedded
 # backend promises: SQLite rows quarantined, files of any age swept at start (the shared backend
-# waits 10 minutes: another replica may be admitting them), webhook deliveries resumed after a
-# restart. COVEC_SKIP_PG_PASS=1 skips it.
+# waits 10 minutes: another replica may be admitting them). COVEC_SKIP_PG_PASS=1 skips it.
 if [[ -z "${COVEC_SKIP_PG_PASS:-}" ]]; then
     COVEC_TEST_BACKEND=postgres cargo nextest run --no-fail-fast --cargo-profile test -E \
         'binary(/^(service_(api|jobs|edits|faults|fair|hardening|s3|webhooks)|readme_clients)$/)
-         and not test(/^(a_corrupt_job_record|orphaned_job_directories|deleted_jobs_stay_deleted|deletes_on_a_full|results_live_in_the_bucket|deliveries_go_on_after)/)'
+         and not test(/^(a_corrupt_job_record|orphaned_job_directories|deleted_jobs_stay_deleted|deletes_on_a_full|results_live_in_the_bucket)/)'
+fi
+
+# The running service against api/openapi.yaml with schemathesis: every check, every phase
+# (README, "The HTTP service"; about 30 s). COVEC_SKIP_SCHEMATHESIS=1 skips it.
+if [[ -z "${COVEC_SKIP_SCHEMATHESIS:-}" ]]; then
+    scripts/schemathesis.sh
 fi
 
 # Every fuzz target for a short, bounded time (README, "Fuzzing"). COVEC_SKIP_FUZZ=1 skips it.

@@ -168,6 +168,30 @@ async fn json_submission_with_base64_and_idempotency_key() {
         first.json()["id"],
         "same key + same body → same job"
     );
+    // The same bytes as schemathesis wrote them: a bit set among the padding bits, and (as
+    // Python's and browsers' decoders allow) no `=`: decoded alike, so the same job again.
+    let lenient = {
+        let alphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let data = image.trim_end_matches('=');
+        assert!(
+            data.len() < image.len(),
+            "the test image's base64 ends in padding"
+        );
+        let last = alphabet.find(data.chars().last().unwrap()).unwrap();
+        let flipped = alphabet.as_bytes()[last ^ 1] as char;
+        format!("{}{flipped}", &data[..data.len() - 1])
+    };
+    let body_lenient = json!({ "image": lenient, "params": params });
+    let replay = server
+        .request(
+            Method::POST,
+            "/v1/jobs",
+            &key,
+            body_lenient.to_string().into_bytes(),
+        )
+        .await;
+    assert_eq!(replay.status, StatusCode::CREATED, "{}", replay.text());
+    assert_eq!(replay.json()["id"], first.json()["id"]);
     let changed = json!({ "image": image, "params": { "paths": 9 } });
     let conflict = server
         .request(
@@ -772,4 +796,31 @@ async fn png_flattened_svg_and_pdf_are_served_as_the_cli_makes_them() {
         assert_eq!(reply.status, StatusCode::OK, "{result}");
         assert_eq!(reply.header("content-encoding"), None, "{result}");
     }
+}
+
+/// `--log-format json`: every line on stderr is one JSON object a log collector can read, and a
+/// job's lines carry its id.
+#[tokio::test]
+async fn json_logs_are_one_object_per_line() {
+    let dir = DataDir::new("json-logs");
+    let server = Server::start(&dir.0, &["--workers", "1", "--log-format", "json"]);
+    let id = submit_quick(&server).await;
+    let job = server.wait_for(&id, PATIENCE, terminal).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    server.stop();
+    let log = std::fs::read_to_string(dir.0.with_extension("log")).unwrap();
+    let lines: Vec<serde_json::Value> = log
+        .lines()
+        .map(|line| serde_json::from_str(line).unwrap_or_else(|error| panic!("{error}: {line:?}")))
+        .collect();
+    assert!(
+        lines.iter().all(|line| line["level"].is_string()
+            && line["timestamp"].is_string()
+            && line["fields"].is_object()),
+        "{log}"
+    );
+    assert!(
+        lines.iter().any(|line| line.to_string().contains(&id)),
+        "no line names the job: {log}"
+    );
 }

@@ -11,7 +11,7 @@ use std::time::Duration;
 use hyper::StatusCode;
 use serde_json::Value;
 use service_support::postgres::{Postgres, Worker};
-use service_support::{DataDir, LONG_PARAMS, Server, test_png};
+use service_support::{DataDir, LONG_PARAMS, Server, problem, test_png};
 
 /// Parameters of a quick job with this seed.
 fn quick_params(seed: u32) -> String {
@@ -37,12 +37,16 @@ const MAX_ITERATIONS: &str = "1000000";
 const LEASE: &str = "2";
 
 fn api(files: &DataDir, name: &str, postgres: &Postgres) -> Server {
+    api_at(files, name, &postgres.url)
+}
+
+fn api_at(files: &DataDir, name: &str, database_url: &str) -> Server {
     Server::start_logged(
         &files.0,
         &files.0.with_extension(format!("{name}.log")),
         &[
             "--database-url",
-            &postgres.url,
+            database_url,
             "--workers",
             "0",
             "--max-iterations",
@@ -53,12 +57,16 @@ fn api(files: &DataDir, name: &str, postgres: &Postgres) -> Server {
 }
 
 fn worker(files: &DataDir, name: &str, postgres: &Postgres) -> Worker {
+    worker_at(files, name, &postgres.url)
+}
+
+fn worker_at(files: &DataDir, name: &str, database_url: &str) -> Worker {
     Worker::start(
         &files.0,
         &files.0.with_extension(format!("{name}.log")),
         &[
             "--database-url",
-            &postgres.url,
+            database_url,
             "--threads",
             "1",
             "--lease-seconds",
@@ -295,8 +303,9 @@ async fn a_job_is_failed_after_its_last_attempt() {
     assert_eq!(job["attempts"], 3, "{job}");
 }
 
-/// PostgreSQL restarted while a job runs: the worker and the API replica reconnect, the job
-/// still succeeds, and the replica takes new jobs.
+/// PostgreSQL stopped and started again while a job runs: meanwhile the replica answers for
+/// the job it knows and an error (not 404) for one it cannot look up; then the worker and the
+/// replica reconnect, the job still succeeds, and the replica takes new jobs.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_database_restart_loses_no_job() {
     let mut postgres = Postgres::start();
@@ -310,7 +319,17 @@ async fn a_database_restart_loses_no_job() {
             job["status"] == "running"
         })
         .await;
-    postgres.restart();
+    postgres.stop();
+    // The replica's copy still answers for the job; one it has never seen cannot be looked
+    // up, which is an error, not a 404 (the job may well exist).
+    let known = server.get(&format!("/v1/jobs/{id}")).await;
+    assert_eq!(known.status, StatusCode::OK, "{}", known.text());
+    let unknown = server
+        .get(&format!("/v1/jobs/job_{}", "0".repeat(32)))
+        .await;
+    assert_eq!(unknown.status, StatusCode::INTERNAL_SERVER_ERROR);
+    assert_eq!(problem(&unknown)["code"], "internal", "{}", unknown.text());
+    postgres.start_again();
     let job = ended(&server, &id, Duration::from_secs(120)).await;
     assert_eq!(job["status"], "succeeded", "{job}");
     let id = submit(&server, &test_png(32), &quick_params(2)).await;
@@ -360,4 +379,81 @@ async fn sse_clients_of_a_killed_replica_see_completion_on_the_other() {
     let (name, data) = events.last().unwrap();
     assert_eq!(name, "completed", "{events:?}");
     assert!(data.contains("\"succeeded\""), "{data}");
+}
+
+/// A database that takes TLS only: an API replica and a worker that verify its certificate
+/// (`sslmode=verify-full` with the CA as `sslrootcert`) run a job; a worker asking for no
+/// TLS, one connecting by an address the certificate does not name, and one trusting
+/// another CA each stop at start with a one-line error saying why.
+#[tokio::test(flavor = "multi_thread")]
+async fn tls_to_the_database_with_libpq_sslmodes() {
+    let (postgres, ca) = Postgres::start_tls_only();
+    let files = DataDir::plain("pg-tls");
+    let by_name = postgres.url.replace("127.0.0.1", "localhost");
+    let verified = format!("{by_name}?sslmode=verify-full&sslrootcert={}", ca.display());
+    let server = api_at(&files, "api", &verified);
+    let _worker = worker_at(&files, "worker", &verified);
+    let id = submit(&server, &test_png(32), &quick_params(1)).await;
+    let job = ended(&server, &id, Duration::from_secs(60)).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    // Encrypted without checking the certificate, as libpq's `require`.
+    let required = format!("{}?sslmode=require", postgres.url);
+    let unchecked = api_at(&files, "unchecked", &required);
+    let job = unchecked.get(&format!("/v1/jobs/{id}")).await.json();
+    assert_eq!(job["status"], "succeeded", "{job}");
+
+    let other_ca = files.0.join("other-ca.pem");
+    let self_signed = rcgen::generate_simple_self_signed(vec!["localhost".to_owned()]).unwrap();
+    std::fs::write(&other_ca, self_signed.cert.pem()).unwrap();
+    let refused = [
+        (format!("{}?sslmode=disable", postgres.url), "no encryption"),
+        (
+            format!(
+                "{}?sslmode=verify-full&sslrootcert={}",
+                postgres.url,
+                ca.display()
+            ),
+            "certificate",
+        ),
+        (
+            format!(
+                "{by_name}?sslmode=verify-ca&sslrootcert={}",
+                other_ca.display()
+            ),
+            "certificate",
+        ),
+        (
+            format!("{by_name}?sslmode=verify-ca&sslrootcert=/nonexistent/ca.pem"),
+            "/nonexistent/ca.pem",
+        ),
+    ];
+    for (url, reason) in refused {
+        let error = worker_start_error(&files, &url);
+        assert!(error.contains(reason), "{url}: {error}");
+        assert_eq!(error.trim_end().lines().count(), 1, "{error}");
+    }
+}
+
+/// What `covec worker` printed when it stopped at start (within 30 s).
+fn worker_start_error(files: &DataDir, database_url: &str) -> String {
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_covec"))
+        .args(["worker", "--data-dir"])
+        .arg(&files.0)
+        .args(["--database-url", database_url])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if started.elapsed() > Duration::from_secs(30) {
+            child.kill().unwrap();
+            panic!("covec worker --database-url {database_url} did not stop");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let output = child.wait_with_output().unwrap();
+    assert!(!output.status.success());
+    String::from_utf8(output.stderr).unwrap()
 }

@@ -1,6 +1,6 @@
 //! Webhooks end to end: a receiver in the test gets each job's completion once, signed as
 //! Standard Webhooks; failed attempts are retried and shown on the job; deliveries go on after
-//! a restart; destinations outside the allow-list are refused at submission.
+//! the server is killed; destinations outside the allow-list are refused at submission.
 #![cfg(all(feature = "cli", feature = "service"))]
 
 mod service_support;
@@ -261,9 +261,12 @@ async fn a_receiver_that_fails_twice_gets_the_third_attempt() {
     );
 }
 
+/// A server killed with a delivery pending: the next server goes on with it. On the shared
+/// backend the next server is another replica, which takes the delivery over once the killed
+/// one's claim expires (`DELIVERY_LEASE`, 10 s).
 #[tokio::test]
-async fn deliveries_go_on_after_a_restart() {
-    // Nothing listens yet: the first attempt fails; the server stops before the retry is due.
+async fn deliveries_go_on_after_the_server_is_killed() {
+    // Nothing listens yet: the first attempt fails; the server dies before the retry is due.
     let port = {
         let probe = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         probe.local_addr().unwrap().port()
@@ -283,7 +286,7 @@ async fn deliveries_go_on_after_a_restart() {
     let delivery = &job["webhook"]["deliveries"][0];
     assert_eq!(delivery["status"], "pending", "{job}");
     assert!(delivery["attempts"][0]["error"].is_string(), "{job}");
-    server.stop();
+    server.kill();
     let receiver = Receiver::start(0, port).await;
     let server = webhook_server(&dir, "5");
     let job = settled(&server, &id).await;

@@ -33,15 +33,14 @@ def main():
         connection = http.client.HTTPConnection(host, port)
         started = time.monotonic()
         jobs = [submit(connection, image, PARAMS) for image in images]
-        pending = set(jobs)
-        while pending:
-            for job in list(pending):
-                state = status(connection, job)
+        # One poll at a time, of the oldest job not seen finished: about 5 requests a second,
+        # so the client takes next to nothing from the cores the workers share (polling every
+        # pending job every 0.2 s took 3-4 % of the CPU time of a run).
+        for job in jobs:
+            while (state := status(connection, job)) != "succeeded":
                 if state in ("failed", "canceled"):
                     sys.exit(f"job {job} {state}")
-                if state == "succeeded":
-                    pending.discard(job)
-            time.sleep(0.2)
+                time.sleep(0.2)
         minutes = (time.monotonic() - started) / 60
         print(f"{len(jobs)} jobs, {args.workers} workers: {len(jobs) / minutes:.1f} jobs/min")
 

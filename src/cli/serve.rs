@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use clap::Args;
+use clap::{Args, ValueEnum};
 
 use covec::service::{
     self, Config, ConnectionLimits, InputLimits, QueueConfig, Scheduling, WebhookConfig,
@@ -27,8 +27,8 @@ pub struct JobArgs {
     #[arg(long, env = "COVEC_OBJECT_STORE")]
     object_store: Option<String>,
     /// Keep job records, the queue and idempotency keys in this PostgreSQL database
-    /// (`postgres://user:password@host:port/db`, no TLS), shared by API replicas and
-    /// `covec worker`s, instead of SQLite in the data directory.
+    /// (`postgres://user:password@host:port/db`; TLS by libpq's `sslmode` and `sslrootcert`),
+    /// shared by API replicas and `covec worker`s, instead of SQLite in the data directory.
     #[arg(long, env = "COVEC_DATABASE_URL", hide_env_values = true)]
     database_url: Option<String>,
     /// Jobs run at once; the pipeline threads are shared out among them. With
@@ -143,6 +143,24 @@ impl JobArgs {
     }
 }
 
+/// How log lines are written to stderr.
+#[derive(Clone, Copy, Debug, Default, ValueEnum)]
+enum LogFormat {
+    /// One human-readable line per event (coloured on a terminal).
+    #[default]
+    Text,
+    /// One JSON object per line, for log collectors (fields, span fields and the target).
+    Json,
+}
+
+/// Logging, shared by `serve` and `worker`; `COVEC_LOG` filters (e.g. `info,covec=debug`).
+#[derive(Args, Debug)]
+struct LogArgs {
+    /// Log line format on stderr.
+    #[arg(long, env = "COVEC_LOG_FORMAT", value_enum, default_value_t)]
+    log_format: LogFormat,
+}
+
 /// Every option also reads an environment variable (shown in `--help`); flags win.
 #[derive(Args, Debug)]
 pub struct ServeArgs {
@@ -151,6 +169,8 @@ pub struct ServeArgs {
     addr: SocketAddr,
     #[command(flatten)]
     jobs: JobArgs,
+    #[command(flatten)]
+    log: LogArgs,
     /// Most jobs waiting for a worker; more get 503 with Retry-After.
     #[arg(long, env = "COVEC_MAX_QUEUED", default_value_t = QueueConfig::default().max_queued)]
     max_queued: usize,
@@ -252,18 +272,22 @@ impl ServeArgs {
 pub struct WorkerArgs {
     #[command(flatten)]
     jobs: JobArgs,
+    #[command(flatten)]
+    log: LogArgs,
 }
 
 /// Logs to stderr (`COVEC_LOG` filters) and a multi-threaded runtime, or the exit code.
-fn start(command: &str) -> Result<tokio::runtime::Runtime, ExitCode> {
-    tracing_subscriber::fmt()
+fn start(command: &str, log: &LogArgs) -> Result<tokio::runtime::Runtime, ExitCode> {
+    let logs = tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("COVEC_LOG")
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,tower_http=info")),
         )
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::stderr().is_terminal())
-        .init();
+        .with_writer(std::io::stderr);
+    match log.log_format {
+        LogFormat::Text => logs.with_ansi(std::io::stderr().is_terminal()).init(),
+        LogFormat::Json => logs.json().init(),
+    }
     tokio::runtime::Runtime::new().map_err(|error| {
         eprintln!("covec {command}: cannot start the async runtime: {error}");
         ExitCode::FAILURE
@@ -271,7 +295,7 @@ fn start(command: &str) -> Result<tokio::runtime::Runtime, ExitCode> {
 }
 
 pub fn work(args: WorkerArgs) -> ExitCode {
-    let runtime = match start("worker") {
+    let runtime = match start("worker", &args.log) {
         Ok(runtime) => runtime,
         Err(code) => return code,
     };
@@ -290,7 +314,7 @@ pub fn work(args: WorkerArgs) -> ExitCode {
 }
 
 pub fn run(args: ServeArgs) -> ExitCode {
-    let runtime = match start("serve") {
+    let runtime = match start("serve", &args.log) {
         Ok(runtime) => runtime,
         Err(code) => return code,
     };

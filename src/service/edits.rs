@@ -141,7 +141,7 @@ async fn create(
     Path(id): Path<String>,
     request: Request,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     require_success(&entry.snapshot())?;
     let content_type = request
         .headers()
@@ -408,7 +408,7 @@ async fn check_edit(
     id: &str,
     edit_id: &str,
 ) -> Result<(), ApiError> {
-    let entry = find(state, owner, id)?;
+    let entry = find(state, owner, id).await?;
     require_success(&entry.snapshot())?;
     check_edit_id(edit_id)?;
     Ok(())

@@ -33,15 +33,27 @@ pub fn endpoints() -> Vec<Endpoint> {
     ]
 }
 
-/// The job `id` if it is well-formed, exists and belongs to `owner`.
-pub fn find(state: &AppState, owner: &Owner, id: &str) -> Result<Arc<JobEntry>, ApiError> {
+/// The job `id` if it is well-formed, exists and belongs to `owner`. A job missing from the
+/// copy is looked up in the shared database off the async threads (so a slow or unreachable
+/// database holds up only the requests that need it), and a failed lookup is an error, not a
+/// 404 (a client must not take a job for gone while the database is down).
+pub async fn find(state: &AppState, owner: &Owner, id: &str) -> Result<Arc<JobEntry>, ApiError> {
     if !is_job_id(id) {
         return Err(ApiError::MalformedJobId(id.to_owned()));
     }
     tracing::Span::current().record("job_id", id);
-    state
-        .queue
-        .get(id, &owner.0)
+    let found = match state.queue.cached(id) {
+        Some(entry) => Some(entry),
+        None if state.queue.is_shared() => {
+            let (queue, id) = (Arc::clone(&state.queue), id.to_owned());
+            tokio::task::spawn_blocking(move || queue.load(&id))
+                .await
+                .map_err(|error| ApiError::Internal(error.to_string()))??
+        }
+        None => None,
+    };
+    found
+        .filter(|entry| entry.owner == owner.0)
         .ok_or_else(|| ApiError::JobNotFound(id.to_owned()))
 }
 
@@ -263,7 +275,7 @@ async fn get(
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
 ) -> Result<Json<JobView>, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     Ok(Json(view(&state, &entry)))
 }
 
@@ -337,7 +349,7 @@ async fn cancel(
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     let queue = state.queue.clone();
     let cancel_entry = entry.clone();
     let stopping = tokio::task::spawn_blocking(move || queue.cancel(&cancel_entry))
@@ -356,7 +368,7 @@ async fn delete(
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
 ) -> Result<StatusCode, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     let queue = state.queue.clone();
     tokio::task::spawn_blocking(move || queue.delete(&entry))
         .await
@@ -377,7 +389,7 @@ async fn events(
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> Result<impl IntoResponse, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     let receiver = entry.record.subscribe();
     let shutdown = state.shutdown.subscribe();
     let resumed = headers

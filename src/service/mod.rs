@@ -340,6 +340,7 @@ pub async fn serve(
         state.rates.clone(),
         config.queue.retention,
     ));
+    let metrics_upkeep = tokio::spawn(ops::upkeep(state.metrics.clone()));
     let shutdown = state.shutdown.clone();
     let signal = tokio::spawn(async move {
         stop_signal().await;
@@ -355,6 +356,7 @@ pub async fn serve(
     tracing::info!("shutting down: no new connections or jobs");
     signal.abort();
     sweeper.abort();
+    metrics_upkeep.abort();
     // Jobs and connections wind down together, so the whole stop takes one grace period.
     let queue = state.queue.clone();
     let grace = config.shutdown_grace;
@@ -378,6 +380,9 @@ pub async fn work(config: Config) -> Result<(), ServeError> {
         config.object_store.as_deref(),
         Some(database_url),
     )?);
+    // Job durations are recorded here too (no `/metrics` on a worker), so the samples need upkeep.
+    let metrics = Arc::new(Metrics::default());
+    let metrics_upkeep = tokio::spawn(ops::upkeep(metrics.clone()));
     let runner = Arc::new(runner::Runner {
         decode_slots: Arc::new(tokio::sync::Semaphore::new(
             config.limits.decode_slots.max(1),
@@ -387,7 +392,7 @@ pub async fn work(config: Config) -> Result<(), ServeError> {
         runtime: tokio::runtime::Handle::current(),
         job_time_limit: config.queue.job_time_limit,
         retention: config.queue.retention,
-        metrics: Arc::new(Metrics::default()),
+        metrics: metrics.clone(),
     });
     let slots = config.queue.workers.max(1);
     let workers = worker::Workers::start(
@@ -406,6 +411,7 @@ pub async fn work(config: Config) -> Result<(), ServeError> {
     tokio::task::spawn_blocking(move || workers.drain(grace))
         .await
         .map_err(std::io::Error::other)?;
+    metrics_upkeep.abort();
     tracing::info!("stopped");
     Ok(())
 }

@@ -1,18 +1,16 @@
 //! Operations endpoints: `/healthz`, `/readyz`, `/metrics` (Prometheus text format).
 //!
-//! The metrics are a handful of hand-kept counters and histograms; a metrics crate would add
-//! a registry and a dependency tree for the same few lines of text.
+//! Metrics go through the `metrics` facade into a Prometheus recorder of this service's own
+//! (not the process-wide one: each [`Metrics`] is one server's), which renders the text.
 
-use std::collections::BTreeMap;
-use std::fmt::Write;
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use axum::extract::{MatchedPath, Request, State};
 use axum::http::{Method, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
+use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusRecorder};
 
 use super::{AppState, Endpoint, endpoint};
 
@@ -54,23 +52,11 @@ async fn readyz(State(state): State<AppState>) -> Response {
 
 async fn metrics(State(state): State<AppState>) -> Response {
     let (queued, running) = state.queue.depth();
-    let mut text = String::new();
-    let _ = writeln!(
-        text,
-        "# HELP covec_jobs_queued Jobs waiting for a worker.\n# TYPE covec_jobs_queued gauge"
-    );
-    let _ = writeln!(text, "covec_jobs_queued {queued}");
-    let _ = writeln!(
-        text,
-        "# HELP covec_jobs_running Jobs being run.\n# TYPE covec_jobs_running gauge"
-    );
-    let _ = writeln!(text, "covec_jobs_running {running}");
-    let _ = writeln!(
-        text,
-        "# HELP covec_workers Configured job workers.\n# TYPE covec_workers gauge"
-    );
-    let _ = writeln!(text, "covec_workers {}", state.queue.workers());
-    state.metrics.write(&mut text);
+    let text = state.metrics.render(&[
+        (JOBS_QUEUED, queued as f64),
+        (JOBS_RUNNING, running as f64),
+        (WORKERS, state.queue.workers() as f64),
+    ]);
     (
         [(
             header::CONTENT_TYPE,
@@ -91,12 +77,9 @@ pub async fn record_http(State(state): State<AppState>, request: Request, next: 
         .map_or_else(|| "unmatched".to_owned(), |path| path.as_str().to_owned());
     let started = Instant::now();
     let response = next.run(request).await;
-    state.metrics.http_request(
-        method,
-        &route,
-        response.status().as_u16(),
-        started.elapsed(),
-    );
+    state
+        .metrics
+        .http_request(method, route, response.status().as_u16(), started.elapsed());
     response
 }
 
@@ -110,6 +93,15 @@ fn method_label(method: &Method) -> &'static str {
         .unwrap_or("other")
 }
 
+const JOBS_QUEUED: &str = "covec_jobs_queued";
+const JOBS_RUNNING: &str = "covec_jobs_running";
+const WORKERS: &str = "covec_workers";
+const JOBS_QUARANTINED: &str = "covec_jobs_quarantined";
+const ORPHANS_SWEPT: &str = "covec_orphans_swept_total";
+const JOB_DURATION: &str = "covec_job_duration_seconds";
+const HTTP_REQUESTS: &str = "covec_http_requests_total";
+const HTTP_DURATION: &str = "covec_http_request_duration_seconds";
+
 const HTTP_BUCKETS: &[f64] = &[
     0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 10.0,
 ];
@@ -117,146 +109,107 @@ const JOB_BUCKETS: &[f64] = &[
     0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0, 1800.0,
 ];
 
-#[derive(Default)]
-struct Histogram {
-    /// Cumulative counts per bucket bound.
-    buckets: Vec<u64>,
-    sum: f64,
-    count: u64,
-}
+/// How often recorded histogram samples are folded into their buckets. The recorder keeps them
+/// until a scrape or this: without it, a server nobody scrapes would hold every request's.
+const UPKEEP_PERIOD: Duration = Duration::from_secs(5);
 
-impl Histogram {
-    fn observe(&mut self, bounds: &[f64], value: f64) {
-        self.buckets.resize(bounds.len(), 0);
-        for (bucket, bound) in self.buckets.iter_mut().zip(bounds) {
-            if value <= *bound {
-                *bucket += 1;
-            }
-        }
-        self.sum += value;
-        self.count += 1;
-    }
-
-    fn write(&self, text: &mut String, name: &str, labels: &str, bounds: &[f64]) {
-        let separator = if labels.is_empty() { "" } else { "," };
-        for (bound, count) in bounds.iter().zip(&self.buckets) {
-            let _ = writeln!(
-                text,
-                "{name}_bucket{{{labels}{separator}le=\"{bound}\"}} {count}"
-            );
-        }
-        let _ = writeln!(
-            text,
-            "{name}_bucket{{{labels}{separator}le=\"+Inf\"}} {}",
-            self.count
-        );
-        let _ = writeln!(text, "{name}_sum{{{labels}}} {}", self.sum);
-        let _ = writeln!(text, "{name}_count{{{labels}}} {}", self.count);
-    }
-}
-
-#[derive(Default)]
-struct HttpStats {
-    /// (method, route) → latency.
-    latency: BTreeMap<(String, String), Histogram>,
-    /// (method, route, status) → requests.
-    requests: BTreeMap<(String, String, u16), u64>,
-}
-
-#[derive(Default)]
+/// One server's metrics: what the service records, rendered on `/metrics`.
 pub struct Metrics {
-    http: Mutex<HttpStats>,
-    /// Outcome → run duration.
-    jobs: Mutex<BTreeMap<&'static str, Histogram>>,
-    /// Unreadable job records moved to quarantine at start.
-    quarantined: AtomicU64,
-    /// Orphaned job directories removed since start.
-    orphans_swept: AtomicU64,
+    recorder: PrometheusRecorder,
+    /// Sum of seconds and count of succeeded jobs, for `Retry-After` estimates (the recorder
+    /// renders its histograms but does not read them back).
+    succeeded: Mutex<(f64, u64)>,
+}
+
+impl Default for Metrics {
+    fn default() -> Self {
+        let recorder = PrometheusBuilder::new()
+            .set_buckets_for_metric(Matcher::Full(HTTP_DURATION.into()), HTTP_BUCKETS)
+            .and_then(|builder| {
+                builder.set_buckets_for_metric(Matcher::Full(JOB_DURATION.into()), JOB_BUCKETS)
+            })
+            .expect("bucket lists are not empty")
+            .build_recorder();
+        metrics::with_local_recorder(&recorder, || {
+            metrics::describe_gauge!(JOBS_QUEUED, "Jobs waiting for a worker.");
+            metrics::describe_gauge!(JOBS_RUNNING, "Jobs being run.");
+            metrics::describe_gauge!(WORKERS, "Configured job workers.");
+            metrics::describe_gauge!(
+                JOBS_QUARANTINED,
+                "Unreadable job records moved to quarantine at start."
+            );
+            metrics::describe_counter!(ORPHANS_SWEPT, "Job directories without a job removed.");
+            metrics::describe_histogram!(JOB_DURATION, "Run time of finished jobs by outcome.");
+            metrics::describe_counter!(HTTP_REQUESTS, "HTTP requests by route and status.");
+            metrics::describe_histogram!(HTTP_DURATION, "HTTP latency by route.");
+            // Present from the start, so a dashboard sees 0 rather than no series.
+            metrics::gauge!(JOBS_QUARANTINED).set(0.0);
+            metrics::counter!(ORPHANS_SWEPT).increment(0);
+        });
+        Self {
+            recorder,
+            succeeded: Mutex::new((0.0, 0)),
+        }
+    }
 }
 
 impl Metrics {
-    fn http_request(&self, method: &str, route: &str, status: u16, elapsed: Duration) {
-        let mut http = self.http.lock().unwrap_or_else(|p| p.into_inner());
-        let key = (method.to_owned(), route.to_owned());
-        http.latency
-            .entry(key.clone())
-            .or_default()
-            .observe(HTTP_BUCKETS, elapsed.as_secs_f64());
-        *http.requests.entry((key.0, key.1, status)).or_default() += 1;
+    fn http_request(&self, method: &'static str, route: String, status: u16, elapsed: Duration) {
+        metrics::with_local_recorder(&self.recorder, || {
+            metrics::counter!(HTTP_REQUESTS, "method" => method, "route" => route.clone(), "status" => status.to_string())
+                .increment(1);
+            metrics::histogram!(HTTP_DURATION, "method" => method, "route" => route)
+                .record(elapsed.as_secs_f64());
+        });
     }
 
     pub fn job_finished(&self, outcome: &'static str, elapsed: Duration) {
-        let mut jobs = self.jobs.lock().unwrap_or_else(|p| p.into_inner());
-        jobs.entry(outcome)
-            .or_default()
-            .observe(JOB_BUCKETS, elapsed.as_secs_f64());
+        let seconds = elapsed.as_secs_f64();
+        metrics::with_local_recorder(&self.recorder, || {
+            metrics::histogram!(JOB_DURATION, "outcome" => outcome).record(seconds);
+        });
+        if outcome == "succeeded" {
+            let mut succeeded = self.succeeded.lock().unwrap_or_else(|p| p.into_inner());
+            succeeded.0 += seconds;
+            succeeded.1 += 1;
+        }
     }
 
     pub fn set_quarantined(&self, count: usize) {
-        self.quarantined.store(count as u64, Ordering::Relaxed);
+        metrics::with_local_recorder(&self.recorder, || {
+            metrics::gauge!(JOBS_QUARANTINED).set(count as f64);
+        });
     }
 
     pub fn orphans_swept(&self, count: usize) {
-        self.orphans_swept
-            .fetch_add(count as u64, Ordering::Relaxed);
+        metrics::with_local_recorder(&self.recorder, || {
+            metrics::counter!(ORPHANS_SWEPT).increment(count as u64);
+        });
     }
 
     /// Mean run time of succeeded jobs, for `Retry-After` estimates.
     pub fn mean_job_seconds(&self) -> Option<f64> {
-        let jobs = self.jobs.lock().unwrap_or_else(|p| p.into_inner());
-        jobs.get("succeeded")
-            .filter(|h| h.count > 0)
-            .map(|h| h.sum / h.count as f64)
+        let (sum, count) = *self.succeeded.lock().unwrap_or_else(|p| p.into_inner());
+        (count > 0).then(|| sum / count as f64)
     }
 
-    fn write(&self, text: &mut String) {
-        let _ = writeln!(
-            text,
-            "# HELP covec_jobs_quarantined Unreadable job records moved to quarantine at start.\n# TYPE covec_jobs_quarantined gauge\ncovec_jobs_quarantined {}",
-            self.quarantined.load(Ordering::Relaxed)
-        );
-        let _ = writeln!(
-            text,
-            "# HELP covec_orphans_swept_total Job directories without a job removed.\n# TYPE covec_orphans_swept_total counter\ncovec_orphans_swept_total {}",
-            self.orphans_swept.load(Ordering::Relaxed)
-        );
-        let jobs = self.jobs.lock().unwrap_or_else(|p| p.into_inner());
-        let _ = writeln!(
-            text,
-            "# HELP covec_job_duration_seconds Run time of finished jobs by outcome.\n# TYPE covec_job_duration_seconds histogram"
-        );
-        for (outcome, histogram) in jobs.iter() {
-            histogram.write(
-                text,
-                "covec_job_duration_seconds",
-                &format!("outcome=\"{outcome}\""),
-                JOB_BUCKETS,
-            );
-        }
-        drop(jobs);
-        let http = self.http.lock().unwrap_or_else(|p| p.into_inner());
-        let _ = writeln!(
-            text,
-            "# HELP covec_http_requests_total HTTP requests by route and status.\n# TYPE covec_http_requests_total counter"
-        );
-        for ((method, route, status), count) in &http.requests {
-            let _ = writeln!(
-                text,
-                "covec_http_requests_total{{method=\"{method}\",route=\"{route}\",status=\"{status}\"}} {count}"
-            );
-        }
-        let _ = writeln!(
-            text,
-            "# HELP covec_http_request_duration_seconds HTTP latency by route.\n# TYPE covec_http_request_duration_seconds histogram"
-        );
-        for ((method, route), histogram) in &http.latency {
-            let labels = format!("method=\"{method}\",route=\"{route}\"");
-            histogram.write(
-                text,
-                "covec_http_request_duration_seconds",
-                &labels,
-                HTTP_BUCKETS,
-            );
-        }
+    /// The Prometheus text, with `gauges` (name, value) read at scrape time set first.
+    fn render(&self, gauges: &[(&'static str, f64)]) -> String {
+        metrics::with_local_recorder(&self.recorder, || {
+            for &(name, value) in gauges {
+                metrics::gauge!(name).set(value);
+            }
+        });
+        self.recorder.handle().render()
+    }
+}
+
+/// Runs the recorder's upkeep every [`UPKEEP_PERIOD`], for as long as the server runs.
+pub async fn upkeep(metrics: Arc<Metrics>) {
+    let handle = metrics.recorder.handle();
+    let mut ticks = tokio::time::interval(UPKEEP_PERIOD);
+    loop {
+        ticks.tick().await;
+        handle.run_upkeep();
     }
 }

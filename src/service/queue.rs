@@ -391,24 +391,20 @@ impl Queue {
         }
     }
 
-    /// The job, if it exists and `owner` may see it. On the shared backend a job not in the
-    /// copy yet (just admitted by another replica) is read from the database: a short
-    /// blocking lookup, on a request's thread.
-    pub fn get(&self, id: &str, owner: &Option<String>) -> Option<Arc<JobEntry>> {
-        let cached = lock(&self.state).jobs.get(id).cloned();
-        let entry = match (cached, self.shared()) {
-            (Some(entry), _) => entry,
-            (None, Some(postgres)) => match postgres.get(id) {
-                Ok(Some(record)) => lock(&self.state).remember(JobEntry::new(record)),
-                Ok(None) => return None,
-                Err(error) => {
-                    warn!(job_id = %id, "reading a job: {error}");
-                    return None;
-                }
-            },
-            (None, None) => return None,
+    /// The job from this process's copy, if it is there.
+    pub fn cached(&self, id: &str) -> Option<Arc<JobEntry>> {
+        lock(&self.state).jobs.get(id).cloned()
+    }
+
+    /// The job from the database, on the shared backend, remembered in the copy: for a job
+    /// just admitted by another replica, which the copy has not caught up with. Blocking.
+    pub fn load(&self, id: &str) -> Result<Option<Arc<JobEntry>>, StoreError> {
+        let Some(postgres) = self.shared() else {
+            return Ok(None);
         };
-        (&entry.owner == owner).then_some(entry)
+        Ok(postgres
+            .get(id)?
+            .map(|record| lock(&self.state).remember(JobEntry::new(record))))
     }
 
     /// Every job, oldest first (for work resumed after a restart, such as webhook deliveries).

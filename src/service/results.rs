@@ -91,7 +91,7 @@ async fn svg(
     query: Result<Query<SvgQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     require_success(&entry.snapshot())?;
     if query.flatten {
         flat_file(&state, id, FileKind::FlatSvg).await
@@ -105,7 +105,7 @@ async fn pdf(
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     require_success(&entry.snapshot())?;
     flat_file(&state, id, FileKind::Pdf).await
 }
@@ -138,7 +138,7 @@ async fn layer(
     Extension(owner): Extension<Owner>,
     Path((id, file)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     let Some(kind) = LayerKind::ALL
         .into_iter()
         .find(|kind| file.strip_suffix(".svg") == Some(kind.name()))
@@ -156,7 +156,7 @@ async fn scene(
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     require_success(&entry.snapshot())?;
     scene_file(&state, &id, "", FileKind::SceneJson).await
 }
@@ -180,7 +180,7 @@ async fn png(
 ) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
     let width = query.width.as_deref().map(parse_width).transpose()?;
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     require_success(&entry.snapshot())?;
     let _slot = state
         .png_renders
@@ -228,7 +228,7 @@ async fn previews(
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     let record = entry.snapshot();
     if record.data_removed {
         return Err(ApiError::DataRemoved(id));
@@ -246,7 +246,7 @@ async fn preview(
     Extension(owner): Extension<Owner>,
     Path((id, file)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id)?;
+    let entry = find(&state, &owner, &id).await?;
     let record = entry.snapshot();
     if record.data_removed {
         return Err(ApiError::DataRemoved(id));

@@ -303,7 +303,17 @@ fn too_many_masks(actual: usize, limits: &InputLimits) -> ApiError {
     }
 }
 
-/// Standard base64, optionally wrapped in a `data:<type>;base64,` URL.
+/// Standard-alphabet base64 as common decoders read it (Python's `b64decode`, browsers' `atob`,
+/// Node's `Buffer`): padding optional and non-zero trailing bits ignored, so `…T75==` decodes as
+/// it does there rather than being refused.
+const LENIENT_BASE64: base64::engine::GeneralPurpose = base64::engine::GeneralPurpose::new(
+    &base64::alphabet::STANDARD,
+    base64::engine::GeneralPurposeConfig::new()
+        .with_decode_allow_trailing_bits(true)
+        .with_decode_padding_mode(base64::engine::DecodePaddingMode::Indifferent),
+);
+
+/// Base64 ([`LENIENT_BASE64`]), optionally wrapped in a `data:<type>;base64,` URL.
 fn decode_base64(field: &str, text: &str) -> Result<Bytes, ApiError> {
     let payload = match text.strip_prefix("data:") {
         Some(url) => url
@@ -314,7 +324,7 @@ fn decode_base64(field: &str, text: &str) -> Result<Bytes, ApiError> {
             })?,
         None => text,
     };
-    base64::engine::general_purpose::STANDARD
+    LENIENT_BASE64
         .decode(payload.trim())
         .map(Bytes::from)
         .map_err(|error| ApiError::BadRequest(format!("`{field}` is not valid base64: {error}")))
@@ -465,6 +475,38 @@ pub(super) fn input_error(what: &'static str) -> impl Fn(imageio::InputError) ->
         }
         other @ (imageio::InputError::Empty { .. } | imageio::InputError::NonBinaryMask { .. }) => {
             ApiError::InvalidInput(format!("{what}: {other}"))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn decode(text: &str) -> Result<Vec<u8>, ApiError> {
+        decode_base64("image", text).map(|bytes| bytes.to_vec())
+    }
+
+    #[test]
+    fn base64_is_read_as_common_decoders_read_it() {
+        // Canonical, with and without padding.
+        assert_eq!(decode("QUJDRA==").unwrap(), b"ABCD");
+        assert_eq!(decode("QUJDRA").unwrap(), b"ABCD");
+        // Non-zero padding bits, as schemathesis sent (`75==`: `5` leaves 0b1001 unused, the
+        // canonical form is `74==`); Python's `b64decode` and browsers' `atob` read both alike.
+        assert_eq!(decode("AAAT75==").unwrap(), [0, 0, 0x13, 0xef]);
+        assert_eq!(decode("AAAT75").unwrap(), [0, 0, 0x13, 0xef]);
+        assert_eq!(decode("QUJDRB==").unwrap(), b"ABCD");
+        assert_eq!(decode("data:image/png;base64,QUJDRB").unwrap(), b"ABCD");
+    }
+
+    #[test]
+    fn what_is_not_base64_stays_a_400() {
+        for text in ["%%%not base64%%%", "QUJDR", "QUJDRA===", "QU=JDRA=="] {
+            assert!(
+                matches!(decode(text), Err(ApiError::BadRequest(_))),
+                "{text} accepted"
+            );
         }
     }
 }

@@ -39,7 +39,9 @@ use super::model::{
 };
 use super::queue::Queue;
 use super::runner::JobEntry;
+use super::store::{StoreError, retry_transient};
 use super::submit::WebhookRequest;
+use super::worker::REAP_EVERY;
 
 /// Webhook settings of `covec serve`.
 #[derive(Clone, Debug)]
@@ -128,9 +130,10 @@ impl Webhooks {
             client: Client::builder(TokioExecutor::new()).build(connector),
             queue,
         });
-        // On the shared backend every API replica would resume them: deliveries are made by
-        // the replica that admitted the job, while it runs (README, "Scaling out").
+        // On the shared backend deliveries are made by the replica that admitted the job, and
+        // taken over by another when that one stops (README, "Scaling out").
         let resumable = if webhooks.queue.is_shared() {
+            tokio::spawn(Arc::clone(&webhooks).take_over());
             Vec::new()
         } else {
             webhooks.queue.entries()
@@ -249,7 +252,63 @@ impl Webhooks {
         }
     }
 
+    /// Shared backend: every [`REAP_EVERY`], renews this replica's claims on deliveries and
+    /// follows the jobs whose deliverer stopped.
+    async fn take_over(self: Arc<Self>) {
+        loop {
+            tokio::time::sleep(REAP_EVERY).await;
+            let queue = Arc::clone(&self.queue);
+            let taken = tokio::task::spawn_blocking(move || {
+                let postgres = queue
+                    .store()
+                    .shared()
+                    .expect("started on the shared backend");
+                let mut entries = Vec::new();
+                for id in postgres.renew_deliveries()? {
+                    match queue
+                        .cached(&id)
+                        .map_or_else(|| queue.load(&id), |e| Ok(Some(e)))?
+                    {
+                        Some(entry) => entries.push(entry),
+                        None => postgres.deliveries_done(&id)?,
+                    }
+                }
+                Ok::<_, StoreError>(entries)
+            })
+            .await;
+            match taken {
+                Ok(Ok(entries)) => {
+                    for entry in entries {
+                        info!(job_id = %entry.id, "taking over the webhook deliveries of a stopped replica");
+                        self.follow(entry);
+                    }
+                }
+                Ok(Err(error)) => warn!("renewing webhook deliveries: {error}"),
+                Err(_) => return,
+            }
+        }
+    }
+
+    /// Delivers the job's events, then (shared backend) gives up this replica's claim.
     async fn run(self: Arc<Self>, entry: Arc<JobEntry>) {
+        self.deliver_events(&entry).await;
+        if self.queue.is_shared() {
+            let (queue, id) = (Arc::clone(&self.queue), entry.id.clone());
+            let done = tokio::task::spawn_blocking(move || {
+                let postgres = queue.store().shared().expect("checked above");
+                retry_transient("ending webhook deliveries", || {
+                    postgres.deliveries_done(&id)
+                })
+            })
+            .await;
+            if let Ok(Err(error)) = done {
+                // The claim expires and another replica finds nothing left to deliver.
+                warn!(job_id = %entry.id, "ending webhook deliveries: {error}");
+            }
+        }
+    }
+
+    async fn deliver_events(&self, entry: &Arc<JobEntry>) {
         let Some(webhook) = entry.snapshot().webhook else {
             return;
         };
@@ -274,18 +333,20 @@ impl Webhooks {
                         break event == WebhookEvent::Completed || record.started_at.is_some();
                     }
                     Ok(Err(_)) => return,
-                    Err(_) if !self.exists(&entry) => return,
+                    Err(_) if !self.exists(entry) => return,
                     Err(_) => {}
                 }
             };
             if happened {
-                self.deliver(&entry, event).await;
+                self.deliver(entry, event).await;
             }
         }
     }
 
+    /// Whether the job is still there: this replica admitted it, so its copy has it until it
+    /// is deleted anywhere.
     fn exists(&self, entry: &JobEntry) -> bool {
-        self.queue.get(&entry.id, &entry.owner).is_some()
+        self.queue.cached(&entry.id).is_some()
     }
 
     /// Attempts one event's delivery until it is delivered or out of attempts.

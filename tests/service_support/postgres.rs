@@ -15,6 +15,8 @@ pub struct Postgres {
     pub url: String,
     port: u16,
     dir: DataDir,
+    /// Server settings beyond the test defaults (`-c name=value` pairs).
+    settings: Vec<String>,
 }
 
 /// The directory holding `initdb` and `postgres`: Debian's newest version, else `PATH`.
@@ -58,6 +60,56 @@ fn chown_to_postgres(path: &Path) {
 
 impl Postgres {
     pub fn start() -> Self {
+        Self::start_with(|_| Vec::new())
+    }
+
+    /// A server that takes TLS connections only, with a certificate for `localhost` signed by
+    /// a throwaway CA; the CA's PEM file, for `sslrootcert`.
+    pub fn start_tls_only() -> (Self, PathBuf) {
+        let mut ca_path = PathBuf::new();
+        let postgres = Self::start_with(|dir| {
+            let ca_params = {
+                let mut params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
+                params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+                params
+            };
+            let ca =
+                rcgen::CertifiedIssuer::self_signed(ca_params, rcgen::KeyPair::generate().unwrap())
+                    .unwrap();
+            let key = rcgen::KeyPair::generate().unwrap();
+            let certificate = rcgen::CertificateParams::new(vec!["localhost".to_owned()])
+                .unwrap()
+                .signed_by(&key, &ca)
+                .unwrap();
+            ca_path = dir.join("ca.pem");
+            std::fs::write(&ca_path, ca.pem()).unwrap();
+            std::fs::write(dir.join("server.crt"), certificate.pem()).unwrap();
+            let key_path = dir.join("server.key");
+            std::fs::write(&key_path, key.serialize_pem()).unwrap();
+            // PostgreSQL refuses a key file others can read.
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(&key_path, std::fs::Permissions::from_mode(0o600)).unwrap();
+            std::fs::write(
+                dir.join("pg_hba.conf"),
+                "hostssl all all 127.0.0.1/32 trust\nhostnossl all all 127.0.0.1/32 reject\n",
+            )
+            .unwrap();
+            chown_to_postgres(dir);
+            ["ssl=on", "ssl_cert_file", "ssl_key_file", "hba_file"]
+                .iter()
+                .zip(["", "server.crt", "server.key", "pg_hba.conf"])
+                .map(|(name, file)| match file {
+                    "" => name.to_string(),
+                    file => format!("{name}={}", dir.join(file).display()),
+                })
+                .collect()
+        });
+        (postgres, ca_path)
+    }
+
+    /// Starts a server with the settings `settings(dir)` returns, after writing into `dir` the
+    /// files they name.
+    fn start_with(settings: impl FnOnce(&Path) -> Vec<String>) -> Self {
         let dir = DataDir::plain("postgres");
         chown_to_postgres(&dir.0);
         let data = dir.0.join("data");
@@ -78,11 +130,13 @@ impl Postgres {
             .local_addr()
             .unwrap()
             .port();
+        let settings = settings(&dir.0);
         let postgres = Self {
-            child: spawn_server(&dir.0, port),
+            child: spawn_server(&dir.0, port, &settings),
             url: format!("postgres://covec@127.0.0.1:{port}/postgres"),
             port,
             dir,
+            settings,
         };
         postgres.wait_ready();
         postgres
@@ -92,11 +146,17 @@ impl Postgres {
     /// port and data; returns once it accepts connections.
     pub fn restart(&mut self) {
         self.stop();
-        self.child = spawn_server(&self.dir.0, self.port);
+        self.start_again();
+    }
+
+    /// Starts the stopped server again; returns once it accepts connections.
+    pub fn start_again(&mut self) {
+        self.child = spawn_server(&self.dir.0, self.port, &self.settings);
         self.wait_ready();
     }
 
-    fn stop(&mut self) {
+    /// Stops the server (fast shutdown: connections are cut).
+    pub fn stop(&mut self) {
         // SIGINT: PostgreSQL's fast shutdown.
         // SAFETY: a signal to our own child.
         unsafe {
@@ -152,8 +212,9 @@ impl Drop for Postgres {
     }
 }
 
-/// `postgres` on `port` for the cluster in `dir/data`, logging to `dir/postgres.log`.
-fn spawn_server(dir: &Path, port: u16) -> Child {
+/// `postgres` on `port` for the cluster in `dir/data` with `settings`, logging to
+/// `dir/postgres.log`.
+fn spawn_server(dir: &Path, port: u16, settings: &[String]) -> Child {
     let log = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
@@ -167,6 +228,7 @@ fn spawn_server(dir: &Path, port: u16) -> Child {
         // A test database: speed over durability.
         .args(["-c", "fsync=off", "-c", "synchronous_commit=off"])
         .args(["-c", "full_page_writes=off"])
+        .args(settings.iter().flat_map(|setting| ["-c", setting]))
         .stdout(Stdio::null())
         .stderr(log)
         .spawn()

@@ -24,7 +24,7 @@ pub enum StoreError {
     /// The object store's runtime stopped while a request was waiting (shutdown).
     #[error("object store: stopped")]
     ObjectStoreStopped,
-    #[error("job database: {0}")]
+    #[error("job database: {}", with_sources(.0))]
     Postgres(#[from] tokio_postgres::Error),
     /// No connection to PostgreSQL could be had in time (the server is down or unreachable).
     #[error("job database: {0}")]
@@ -174,4 +174,20 @@ pub(super) fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError
         path: path.to_owned(),
         source,
     }
+}
+
+/// `error` and its sources on one line: tokio-postgres and deadpool keep the server's words
+/// (a refused login, a certificate that does not match) in the sources, not in the message.
+pub fn with_sources(error: &dyn std::error::Error) -> String {
+    let mut line = error.to_string();
+    let mut source = error.source();
+    while let Some(cause) = source {
+        let words = cause.to_string();
+        if !line.ends_with(&words) {
+            line.push_str(": ");
+            line.push_str(&words);
+        }
+        source = cause.source();
+    }
+    line
 }

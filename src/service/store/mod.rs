@@ -23,6 +23,7 @@ use sha2::{Digest, Sha256};
 mod artefacts;
 mod error;
 mod postgres;
+mod postgres_tls;
 
 use super::model::{JobRecord, Status, is_job_id, now_ms};
 use artefacts::Artefacts;

@@ -23,18 +23,23 @@ use std::str::FromStr;
 use std::time::{Duration, SystemTime};
 
 use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
-use tokio_postgres::{NoTls, Row};
+use tokio_postgres::Row;
 
-use super::error::StoreError;
+use super::error::{StoreError, with_sources};
 use super::parse_record;
+use super::postgres_tls::TlsSettings;
 use crate::service::error::Problem;
 use crate::service::fair::Scheduling;
 use crate::service::model::{JobRecord, Status};
 
 /// The schema, version by version; a version once released is never edited.
-const MIGRATIONS: [(i32, &str); 2] = [
+const MIGRATIONS: [(i32, &str); 3] = [
     (1, include_str!("../../../migrations/0001_jobs.sql")),
-    (2, include_str!("../../../migrations/0002_fair_queue.sql")),
+    (
+        2,
+        include_str!("../../../migrations/0002_webhook_deliveries.sql"),
+    ),
+    (3, include_str!("../../../migrations/0003_fair_queue.sql")),
 ];
 
 /// Advisory lock ids: migrations, claims (one at a time, so each sees the running counts the
@@ -46,6 +51,11 @@ const CLIENT_LOCK: i32 = 7316;
 /// Runs of one job, the first included, before a job whose worker keeps vanishing is failed
 /// (`workers-lost`): one lost worker is bad luck, three in a row is likely the job itself.
 pub const MAX_ATTEMPTS: i32 = 3;
+
+/// How long an API replica's claim on delivering a job's webhook events holds unless renewed
+/// ([`Postgres::renew_deliveries`]): when the replica stops, another takes the deliveries over
+/// after this. Short, as a delay to the receiver; renewals come every few seconds.
+pub const DELIVERY_LEASE: Duration = Duration::from_secs(10);
 
 /// Connections per process: a handful of short statements at a time.
 const POOL_SIZE: usize = 8;
@@ -63,6 +73,8 @@ const KEEP_WEBHOOK: &str = "|| jsonb_build_object('webhook', jobs.record -> 'web
 
 pub struct Postgres {
     pool: Pool,
+    /// This process, in the claims it holds on webhook deliveries.
+    replica: String,
     /// Taken out and shut down in the background on drop (as the object store's).
     runtime: Option<tokio::runtime::Runtime>,
 }
@@ -119,20 +131,17 @@ pub enum Change {
 }
 
 impl Postgres {
-    /// Connects (checking the server answers) and applies pending migrations.
+    /// Connects (checking the server answers), over TLS as `url` asks ([`TlsSettings`]), and
+    /// applies pending migrations.
     pub fn connect(url: &str) -> Result<Self, StoreError> {
-        let config = tokio_postgres::Config::from_str(url).map_err(|error| {
+        let (tls, url) = TlsSettings::take_from(url)?;
+        let mut config = tokio_postgres::Config::from_str(&url).map_err(|error| {
             StoreError::DatabaseUrl(format!("not a PostgreSQL connection string: {error}"))
         })?;
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .thread_name("covec-postgres")
-            .enable_all()
-            .build()
-            .map_err(|error| StoreError::DatabaseUrl(format!("runtime: {error}")))?;
+        config.ssl_mode(tls.ssl_mode());
         let manager = Manager::from_config(
             config,
-            NoTls,
+            tls.connector()?,
             ManagerConfig {
                 recycling_method: RecyclingMethod::Fast,
             },
@@ -144,8 +153,17 @@ impl Postgres {
             .create_timeout(Some(CONNECT_WAIT))
             .build()
             .map_err(|error| StoreError::DatabaseUrl(error.to_string()))?;
+        // Made last: from here on an error drops it through `Drop` (callers may be inside
+        // another runtime, where dropping one plainly panics).
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("covec-postgres")
+            .enable_all()
+            .build()
+            .map_err(|error| StoreError::DatabaseUrl(format!("runtime: {error}")))?;
         let postgres = Self {
             pool,
+            replica: uuid::Uuid::now_v7().simple().to_string(),
             runtime: Some(runtime),
         };
         postgres.migrate()?;
@@ -166,7 +184,7 @@ impl Postgres {
         runtime.spawn(async move {
             let result = match pool.get().await {
                 Ok(client) => request(client).await,
-                Err(error) => Err(StoreError::DatabasePool(error.to_string())),
+                Err(error) => Err(StoreError::DatabasePool(with_sources(&error))),
             };
             let _ = answer.send(result);
         });
@@ -226,6 +244,8 @@ impl Postgres {
         let (id, owner) = (record.id.clone(), record.owner.clone());
         let (job_client, priority) = (record.client.clone(), record.priority.name());
         let key = record.idempotency.as_ref().map(|i| i.key.clone());
+        let (replica, lease) = (self.replica.clone(), DELIVERY_LEASE.as_secs_f64());
+        let webhook = record.webhook.is_some();
         self.run(move |mut client| async move {
             // The earlier job, looked for first: a replay is answered even when the queue is full.
             if let Some(existing) = by_key(&client, &owner, &key).await? {
@@ -252,14 +272,34 @@ impl Postgres {
             if key_limit.is_some_and(|limit| mine >= limit) {
                 return Ok(Inserted::KeyFull(mine));
             }
-            let inserted = transaction
-                .execute(
-                    "INSERT INTO jobs (id, owner, status, record, idempotency_key, client, priority)
-                     VALUES ($1, $2, 'queued', $3::text::jsonb, $4, $5, $6)
-                     ON CONFLICT DO NOTHING",
-                    &[&id, &owner, &json, &key, &job_client, &priority],
+            // With its webhook deliveries claimed by this replica in the same statement, so
+            // no job with a webhook is ever without a deliverer.
+            let inserted: i64 = transaction
+                .query_one(
+                    "WITH job AS (
+                         INSERT INTO jobs (id, owner, status, record, idempotency_key, client,
+                             priority)
+                         VALUES ($1, $2, 'queued', $3::text::jsonb, $4, $8, $9)
+                         ON CONFLICT DO NOTHING RETURNING id),
+                     deliverer AS (
+                         INSERT INTO webhook_deliveries (job_id, replica, lease_expires_at)
+                         SELECT id, $5, clock_timestamp() + make_interval(secs => $6)
+                         FROM job WHERE $7)
+                     SELECT count(*) FROM job",
+                    &[
+                        &id,
+                        &owner,
+                        &json,
+                        &key,
+                        &replica,
+                        &lease,
+                        &webhook,
+                        &job_client,
+                        &priority,
+                    ],
                 )
-                .await?;
+                .await?
+                .get(0);
             transaction.commit().await?;
             if inserted == 1 {
                 return Ok(Inserted::Created);
@@ -498,6 +538,50 @@ impl Postgres {
                     "UPDATE jobs SET record = jsonb_set(record, '{webhook}', $2::text::jsonb)
                      WHERE id = $1 AND NOT deleted",
                     &[&id, &json],
+                )
+                .await?;
+            Ok(())
+        })
+    }
+
+    /// Renews this replica's claims on webhook deliveries and takes over those whose claim
+    /// expired (their replica stopped); the jobs taken over.
+    pub fn renew_deliveries(&self) -> Result<Vec<String>, StoreError> {
+        let (replica, lease) = (self.replica.clone(), DELIVERY_LEASE.as_secs_f64());
+        self.run(move |client| async move {
+            client
+                .execute(
+                    "UPDATE webhook_deliveries
+                     SET lease_expires_at = clock_timestamp() + make_interval(secs => $2)
+                     WHERE replica = $1",
+                    &[&replica, &lease],
+                )
+                .await?;
+            let taken = client
+                .query(
+                    "UPDATE webhook_deliveries
+                     SET replica = $1, lease_expires_at = clock_timestamp() + make_interval(secs => $2)
+                     WHERE job_id IN (
+                         SELECT job_id FROM webhook_deliveries
+                         WHERE lease_expires_at < clock_timestamp()
+                         ORDER BY lease_expires_at LIMIT 100 FOR UPDATE SKIP LOCKED)
+                     RETURNING job_id",
+                    &[&replica, &lease],
+                )
+                .await?;
+            Ok(taken.iter().map(|row| row.get(0)).collect())
+        })
+    }
+
+    /// This replica is done with the job's webhook deliveries: all made or given up, or the
+    /// job is gone.
+    pub fn deliveries_done(&self, id: &str) -> Result<(), StoreError> {
+        let (id, replica) = (id.to_owned(), self.replica.clone());
+        self.run(move |client| async move {
+            client
+                .execute(
+                    "DELETE FROM webhook_deliveries WHERE job_id = $1 AND replica = $2",
+                    &[&id, &replica],
                 )
                 .await?;
             Ok(())
