@@ -700,6 +700,12 @@ impl Queue {
             self.config.retention,
         );
         let outcome = postgres.cancel(&ended)?;
+        if matches!(outcome, Canceled::Ended) {
+            // The follower reads the depth again within FOLLOW_EVERY; until then a job
+            // submitted right after this cancel must not be refused for the room it freed.
+            let mut depth = lock(&self.shared_depth);
+            depth.0 = depth.0.saturating_sub(1);
+        }
         let current = match outcome {
             Canceled::Ended => Some(ended),
             Canceled::Stopping | Canceled::Nothing => postgres.get(&entry.id)?,
