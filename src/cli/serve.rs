@@ -9,7 +9,9 @@ use std::time::Duration;
 
 use clap::{Args, ValueEnum};
 
-use covec::service::{self, Config, ConnectionLimits, InputLimits, QueueConfig, WebhookConfig};
+use covec::service::{
+    self, Config, ConnectionLimits, InputLimits, QueueConfig, Scheduling, WebhookConfig,
+};
 
 /// Storage, job slots and what one job may take: shared by `serve` and `worker`. Every option
 /// also reads an environment variable (shown in `--help`); flags win.
@@ -73,11 +75,36 @@ pub struct JobArgs {
     /// Seconds running jobs may finish after SIGTERM before they are re-queued for the next start.
     #[arg(long, env = "COVEC_SHUTDOWN_GRACE", default_value_t = Config::default().shutdown_grace.as_secs())]
     shutdown_grace: u64,
+    /// Seconds a batch job waits before it counts as interactive (so batch work is never
+    /// starved by interactive work).
+    #[arg(long, env = "COVEC_BATCH_AGE", default_value_t = Scheduling::default().batch_age.as_secs())]
+    batch_age: u64,
+    /// Most jobs one key may have waiting (then 429 `key-queue-full`); 0: only --max-queued.
+    #[arg(long, env = "COVEC_MAX_QUEUED_PER_KEY", default_value_t = 0)]
+    max_queued_per_key: usize,
+    /// Most jobs of one key running at once (its others wait); 0: no limit.
+    #[arg(long, env = "COVEC_MAX_RUNNING_PER_KEY", default_value_t = 0)]
+    max_running_per_key: usize,
+    /// Submissions one key may make per minute, in a burst of as many (then 429
+    /// `rate-limited`); 0: no limit. Counted by each API process on its own.
+    #[arg(long, env = "COVEC_RATE_PER_KEY", default_value_t = 0)]
+    rate_per_key: u32,
+    /// Other limits for particular keys, comma-separated `KEY:LIMIT=N` (LIMIT `queued`,
+    /// `running` or `rate`; N 0 for none; KEY an API key, or an X-Client-Key without keys),
+    /// e.g. `batchkey:queued=500,batchkey:running=1,webkey:rate=600`.
+    #[arg(
+        long,
+        env = "COVEC_KEY_LIMITS",
+        value_delimiter = ',',
+        hide_env_values = true
+    )]
+    key_limits: Vec<String>,
 }
 
 impl JobArgs {
-    /// The settings these options give, over `config`.
-    fn apply(self, config: &mut Config) {
+    /// The settings these options give, over `config`; an error names a malformed
+    /// `--key-limits` entry.
+    fn apply(self, config: &mut Config) -> Result<(), String> {
         let defaults = QueueConfig::default();
         config.data_dir = self.data_dir;
         config.object_store = self.object_store;
@@ -99,6 +126,20 @@ impl JobArgs {
             decode_wait: Duration::from_secs(self.decode_wait),
         };
         config.shutdown_grace = Duration::from_secs(self.shutdown_grace);
+        let scheduling = &mut config.queue.scheduling;
+        scheduling.batch_age = Duration::from_secs(self.batch_age);
+        scheduling.limits.queued = (self.max_queued_per_key > 0).then_some(self.max_queued_per_key);
+        scheduling.limits.running =
+            (self.max_running_per_key > 0).then_some(self.max_running_per_key);
+        scheduling.limits.per_minute = std::num::NonZeroU32::new(self.rate_per_key);
+        for entry in self
+            .key_limits
+            .iter()
+            .filter(|entry| !entry.trim().is_empty())
+        {
+            scheduling.override_limit(entry)?;
+        }
+        Ok(())
     }
 }
 
@@ -180,7 +221,7 @@ pub struct ServeArgs {
 }
 
 impl ServeArgs {
-    fn config(self) -> Config {
+    fn config(self) -> Result<Config, String> {
         let mut config = Config {
             addr: self.addr,
             queue: QueueConfig {
@@ -221,8 +262,8 @@ impl ServeArgs {
             },
             ..Config::default()
         };
-        self.jobs.apply(&mut config);
-        config
+        self.jobs.apply(&mut config)?;
+        Ok(config)
     }
 }
 
@@ -263,7 +304,10 @@ pub fn work(args: WorkerArgs) -> ExitCode {
         Err(code) => return code,
     };
     let mut config = Config::default();
-    args.jobs.apply(&mut config);
+    if let Err(error) = args.jobs.apply(&mut config) {
+        eprintln!("covec worker: --key-limits: {error}");
+        return ExitCode::FAILURE;
+    }
     let serving = service::work(config, args.ops_addr, |addr| {
         println!("covec worker: probes and metrics on http://{addr}");
     });
@@ -281,7 +325,14 @@ pub fn run(args: ServeArgs) -> ExitCode {
         Ok(runtime) => runtime,
         Err(code) => return code,
     };
-    let result = runtime.block_on(service::serve(args.config(), |addr| {
+    let config = match args.config() {
+        Ok(config) => config,
+        Err(error) => {
+            eprintln!("covec serve: --key-limits: {error}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = runtime.block_on(service::serve(config, |addr| {
         // The one line on stdout: scripts (and the integration tests) read the bound address.
         println!("covec serve: listening on http://{addr}");
     }));

@@ -1,5 +1,6 @@
 //! Optional API keys: with keys configured, every `/v1` request needs `Authorization: Bearer <key>`,
-//! and each job is visible only to the key that created it.
+//! and each job is visible only to the key that created it. The key is also whose turn a job
+//! takes in the queue and whose limits it counts against ([`Client`]).
 
 use axum::extract::{Request, State};
 use axum::http::header;
@@ -15,6 +16,16 @@ use super::submit::hex;
 /// Only the hash is stored with jobs and logged.
 #[derive(Clone, Debug)]
 pub struct Owner(pub Option<String>);
+
+/// Whose turn a request's job takes in the queue, and whose per-key limits it counts against
+/// ([`super::fair`]): with API keys, the key's identity (as [`Owner`]); without, the identity of
+/// the `X-Client-Key` header's value if sent (a client's own label, not a secret: the server
+/// has no keys to check it against); else empty, every anonymous request one key together.
+#[derive(Clone, Debug)]
+pub struct Client(pub String);
+
+/// The header naming a client when the server has no API keys.
+const CLIENT_KEY: &str = "x-client-key";
 
 /// The identity stored for a key.
 pub fn key_id(key: &str) -> String {
@@ -40,6 +51,21 @@ pub async fn require_key(
             _ => return Err(ApiError::Unauthorized),
         }
     };
+    let client = match &owner {
+        Some(id) => id.clone(),
+        None => match request.headers().get(CLIENT_KEY) {
+            None => String::new(),
+            Some(value) => match value.to_str() {
+                Ok(label) if !label.trim().is_empty() && label.len() <= 255 => key_id(label.trim()),
+                _ => {
+                    return Err(ApiError::BadRequest(
+                        "X-Client-Key must be 1-255 visible ASCII characters".into(),
+                    ));
+                }
+            },
+        },
+    };
     request.extensions_mut().insert(Owner(owner));
+    request.extensions_mut().insert(Client(client));
     Ok(next.run(request).await)
 }

@@ -83,6 +83,14 @@ pub enum ApiError {
     IdempotencyMismatch,
     #[error("the job queue is full ({0} jobs); retry later")]
     QueueFull(usize, u64),
+    #[error("this key has {actual} jobs queued, its limit is {limit}; retry once one has started")]
+    KeyQueueFull {
+        limit: u64,
+        actual: u64,
+        retry_after: u64,
+    },
+    #[error("this key may submit {limit} jobs a minute; retry in {retry_after} s")]
+    RateLimited { limit: u64, retry_after: u64 },
     #[error("every decoding slot stayed busy; retry in {0} s")]
     DecodeBusy(u64),
     #[error("the server is shutting down")]
@@ -128,6 +136,7 @@ impl ApiError {
             | InvalidInput(_)
             | WebhookHostNotAllowed(_)
             | IdempotencyMismatch => StatusCode::UNPROCESSABLE_ENTITY,
+            KeyQueueFull { .. } | RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
             QueueFull(..) | DecodeBusy(_) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             NotReady(..) => StatusCode::CONFLICT,
             DataRemoved(_) => StatusCode::GONE,
@@ -163,6 +172,8 @@ impl ApiError {
             WebhookHostNotAllowed(_) => "webhook-host-not-allowed",
             IdempotencyMismatch => "idempotency-key-reused",
             QueueFull(..) => "queue-full",
+            KeyQueueFull { .. } => "key-queue-full",
+            RateLimited { .. } => "rate-limited",
             DecodeBusy(_) => "decode-busy",
             ShuttingDown => "shutting-down",
             NotReady(..) => "job-not-succeeded",
@@ -177,7 +188,16 @@ impl ApiError {
 
     fn retry_after(&self) -> Option<u64> {
         match self {
-            ApiError::QueueFull(_, seconds) | ApiError::DecodeBusy(seconds) => Some(*seconds),
+            ApiError::QueueFull(_, seconds)
+            | ApiError::DecodeBusy(seconds)
+            | ApiError::KeyQueueFull {
+                retry_after: seconds,
+                ..
+            }
+            | ApiError::RateLimited {
+                retry_after: seconds,
+                ..
+            } => Some(*seconds),
             ApiError::ShuttingDown => Some(5),
             _ => None,
         }
@@ -189,10 +209,11 @@ impl ApiError {
             ApiError::TooManyPixels { limit, actual }
             | ApiError::TooManyMasks { limit, actual }
             | ApiError::TooManyChanges { limit, actual }
-            | ApiError::InputsTooLarge { limit, actual } => (Some(*limit), Some(*actual)),
-            ApiError::BodyTooLarge { limit } | ApiError::TooManyLabels { limit } => {
-                (Some(*limit), None)
-            }
+            | ApiError::InputsTooLarge { limit, actual }
+            | ApiError::KeyQueueFull { limit, actual, .. } => (Some(*limit), Some(*actual)),
+            ApiError::BodyTooLarge { limit }
+            | ApiError::TooManyLabels { limit }
+            | ApiError::RateLimited { limit, .. } => (Some(*limit), None),
             _ => (None, None),
         };
         Problem {

@@ -12,7 +12,7 @@ use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
 use serde::Deserialize;
 
-use super::auth::Owner;
+use super::auth::{Client, Owner};
 use super::error::ApiError;
 use super::model::{
     Idempotency, InputManifest, JobRecord, JobView, Status, is_job_id, new_job_id, now_ms,
@@ -59,12 +59,12 @@ pub async fn find(state: &AppState, owner: &Owner, id: &str) -> Result<Arc<JobEn
 
 fn view(state: &AppState, entry: &JobEntry) -> JobView {
     let record = entry.snapshot();
-    let position = if record.status == Status::Queued {
-        state.queue.queue_position(&record.id)
+    let placement = if record.status == Status::Queued {
+        state.queue.placement(&record.id)
     } else {
         None
     };
-    JobView::new(&record, position)
+    JobView::new(&record, placement)
 }
 
 /// The query of `POST /v1/jobs`.
@@ -82,9 +82,17 @@ const PREFER: &str = "prefer";
 async fn create(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
+    Extension(Client(client)): Extension<Client>,
     headers: HeaderMap,
     request: Request,
 ) -> Result<Response, ApiError> {
+    state
+        .rates
+        .check(&client)
+        .map_err(|(retry_after, limit)| ApiError::RateLimited {
+            limit: u64::from(limit),
+            retry_after,
+        })?;
     let key = match headers.get(IDEMPOTENCY_KEY) {
         Some(value) => match value.to_str() {
             Ok(key) if !key.is_empty() && key.len() <= 255 => Some(key.to_owned()),
@@ -101,7 +109,7 @@ async fn create(
     // Without a key, a full queue refuses before the body is read. With one, a retry gets its
     // replay even when the queue is full: capacity is checked once the key is looked up.
     if key.is_none() {
-        state.queue.check_capacity()?;
+        state.queue.check_capacity(&client)?;
     }
     let mut submission = submit::read(request, &state.limits).await?;
     let fingerprint = submission.fingerprint();
@@ -112,7 +120,7 @@ async fn create(
         if let Some(earlier) = state.queue.find_idempotent(&owner.0, key, &fingerprint)? {
             return Ok(created(&state, &earlier, true));
         }
-        state.queue.check_capacity()?;
+        state.queue.check_capacity(&client)?;
     }
     // Decoding is CPU work: off the async workers, and a few requests at a time. The slot goes
     // with the decoding, which runs on even if the client leaves.
@@ -162,6 +170,8 @@ async fn create(
     let record = JobRecord {
         id,
         owner: owner.0.clone(),
+        client,
+        priority: submission.priority.unwrap_or_default(),
         status: Status::Queued,
         created_at: now_ms(),
         started_at: None,
@@ -327,7 +337,7 @@ async fn list(
     };
     let items: Vec<JobView> = page
         .iter()
-        .map(|(record, position)| JobView::new(record, *position))
+        .map(|(record, placement)| JobView::new(record, *placement))
         .collect();
     Ok(Json(serde_json::json!({ "items": items, "next_cursor": next_cursor })).into_response())
 }
@@ -407,13 +417,13 @@ async fn events(
                     }
                 }
                 let record = receiver.borrow_and_update().clone();
-                let position = if record.status == Status::Queued {
-                    state.queue.queue_position(&record.id)
+                let placement = if record.status == Status::Queued {
+                    state.queue.placement(&record.id)
                 } else {
                     None
                 };
                 let terminal = record.status.is_terminal();
-                let data = serde_json::to_string(&JobView::new(&record, position))
+                let data = serde_json::to_string(&JobView::new(&record, placement))
                     .expect("views serialise");
                 let digest = EventId::digest_of(&data);
                 if cursor.seen.take() == Some(digest) {

@@ -12,6 +12,7 @@ mod auth;
 mod conn;
 mod edits;
 mod error;
+mod fair;
 #[doc(hidden)]
 pub mod fuzzing;
 mod jobs;
@@ -26,6 +27,7 @@ mod webhooks;
 mod worker;
 
 pub use conn::ConnectionLimits;
+pub use fair::{KeyLimits, Scheduling};
 pub use queue::QueueConfig;
 pub use submit::InputLimits;
 pub use webhooks::{WebhookConfig, WebhookConfigError};
@@ -121,6 +123,8 @@ pub struct AppState {
     /// Bounds the PNG renders running at once ([`results::PNG_RENDERS`]).
     png_renders: Arc<tokio::sync::Semaphore>,
     webhooks: Arc<webhooks::Webhooks>,
+    /// Per-key submission rates.
+    rates: Arc<fair::SubmissionRates>,
 }
 
 /// Why the server could not start or stopped with an error.
@@ -190,6 +194,7 @@ impl AppState {
             shutdown: watch::Sender::new(false),
             max_wait: config.max_wait,
             png_renders: Arc::new(tokio::sync::Semaphore::new(results::PNG_RENDERS)),
+            rates: Arc::new(fair::SubmissionRates::new(&config.queue.scheduling)),
         })
     }
 }
@@ -330,7 +335,11 @@ pub async fn serve(
     tracing::info!(%addr, data_dir = %config.data_dir.display(), workers = state.queue.workers(), "listening");
     on_listening(addr);
 
-    let sweeper = tokio::spawn(sweep_expired(state.queue.clone(), config.queue.retention));
+    let sweeper = tokio::spawn(sweep_expired(
+        state.queue.clone(),
+        state.rates.clone(),
+        config.queue.retention,
+    ));
     let metrics_upkeep = tokio::spawn(ops::upkeep(state.metrics.clone()));
     let shutdown = state.shutdown.clone();
     let signal = tokio::spawn(async move {
@@ -399,6 +408,7 @@ pub async fn work(
             slots,
             threads: config.queue.threads,
             lease: config.queue.lease,
+            scheduling: config.queue.scheduling.clone(),
         },
     )?;
     tracing::info!(slots, "worker started");
@@ -440,12 +450,14 @@ pub async fn work(
     Ok(())
 }
 
-/// Removes expired results, and job directories no job owns, periodically.
-async fn sweep_expired(queue: Arc<Queue>, retention: Duration) {
+/// Removes expired results, job directories no job owns, and the rate state of keys idle for
+/// a while, periodically.
+async fn sweep_expired(queue: Arc<Queue>, rates: Arc<fair::SubmissionRates>, retention: Duration) {
     let period = (retention / 10).clamp(Duration::from_secs(1), Duration::from_secs(60));
     let mut ticks = tokio::time::interval(period);
     loop {
         ticks.tick().await;
+        rates.shrink();
         let queue = queue.clone();
         let (removed, orphans) = tokio::task::spawn_blocking(move || {
             (

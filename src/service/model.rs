@@ -61,6 +61,31 @@ impl Status {
     }
 }
 
+/// How soon a job is wanted: `interactive` (someone is waiting: a web page) goes before `batch`
+/// (bulk work that fills the rest); see [`super::fair`] for the rule and its ageing.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Priority {
+    #[default]
+    Interactive,
+    Batch,
+}
+
+impl Priority {
+    pub fn name(self) -> &'static str {
+        match self {
+            Priority::Interactive => "interactive",
+            Priority::Batch => "batch",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Priority::Interactive, Priority::Batch]
+            .into_iter()
+            .find(|priority| priority.name() == name)
+    }
+}
+
 /// Why a job was asked to stop.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -141,6 +166,12 @@ pub struct JobRecord {
     pub id: String,
     /// Hash of the API key that created the job (`None` without keys).
     pub owner: Option<String>,
+    /// Whose turn the job takes in the queue ([`super::auth::Client`]): the owner with API
+    /// keys, else a hash of `X-Client-Key`; empty for anonymous requests (one key together).
+    #[serde(default)]
+    pub client: String,
+    #[serde(default)]
+    pub priority: Priority,
     pub status: Status,
     /// Unix milliseconds.
     pub created_at: u64,
@@ -295,9 +326,14 @@ pub fn rfc3339(unix_ms: u64) -> String {
 pub struct JobView {
     pub id: String,
     pub status: Status,
-    /// Jobs ahead of this one (0 = next), while queued.
+    pub priority: Priority,
+    /// Jobs that start before this one if no other arrives (0 = next), while queued.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub queue_position: Option<usize>,
+    /// While queued, once a job has succeeded since the server started: when this one should
+    /// start, if the jobs ahead take the mean run time of recent jobs ([`Placement`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub estimated_start_at: Option<String>,
     pub created_at: String,
     pub started_at: Option<String>,
     pub completed_at: Option<String>,
@@ -392,8 +428,16 @@ pub struct ResultUrls {
     pub light: String,
 }
 
+/// Where a queued job stands: how many jobs start before it, and when it should start (Unix
+/// milliseconds; `None` before any job has succeeded to estimate from).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Placement {
+    pub position: usize,
+    pub estimated_start_at: Option<u64>,
+}
+
 impl JobView {
-    pub fn new(record: &JobRecord, queue_position: Option<usize>) -> Self {
+    pub fn new(record: &JobRecord, placement: Option<Placement>) -> Self {
         let base = format!("/v1/jobs/{}", record.id);
         let results =
             (record.status == Status::Succeeded && !record.data_removed).then(|| ResultUrls {
@@ -406,7 +450,11 @@ impl JobView {
         Self {
             id: record.id.clone(),
             status: record.status,
-            queue_position,
+            priority: record.priority,
+            queue_position: placement.map(|placement| placement.position),
+            estimated_start_at: placement
+                .and_then(|placement| placement.estimated_start_at)
+                .map(rfc3339),
             created_at: rfc3339(record.created_at),
             started_at: record.started_at.map(rfc3339),
             completed_at: record.completed_at.map(rfc3339),

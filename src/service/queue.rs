@@ -8,13 +8,14 @@
 //! change made anywhere into the copy every [`FOLLOW_EVERY`], so polls, listings and SSE on
 //! any replica see jobs running on any worker.
 //!
-//! Embedded: `workers` runner threads take queued jobs in order; each runs its job's pipeline
-//! inside its own rayon pool (`threads / workers` threads), so the async runtime never runs
-//! pipeline work. One pool per job slot rather than one shared pool: in a shared pool a thread
-//! waiting inside one job's parallel loop may pick up another whole job (rayon work-stealing),
-//! stalling the first job, and its cancellation, until the second ends.
+//! Embedded: `workers` runner threads take queued jobs by the fair rule ([`super::fair`]);
+//! each runs its job's pipeline inside its own rayon pool (`threads / workers` threads), so the
+//! async runtime never runs pipeline work. One pool per job slot rather than one shared pool:
+//! in a shared pool a thread waiting inside one job's parallel loop may pick up another whole
+//! job (rayon work-stealing), stalling the first job, and its cancellation, until the second
+//! ends.
 
-use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -24,7 +25,8 @@ use axum::body::Bytes;
 use tracing::{info, info_span, warn};
 
 use super::error::ApiError;
-use super::model::{CancelReason, JobRecord, Status, Webhook};
+use super::fair::{FairQueue, Scheduling};
+use super::model::{CancelReason, JobRecord, Placement, Status, Webhook, now_ms};
 use super::ops::Metrics;
 use super::runner::{JobEntry, Runner, Settled, job_pool, lock};
 use super::store::{
@@ -62,6 +64,8 @@ pub struct QueueConfig {
     pub retention: Duration,
     /// Shared backend: how long a worker's claim holds without a heartbeat. Default 30 s.
     pub lease: Duration,
+    /// Which job runs next, and what each key may hold.
+    pub scheduling: Scheduling,
 }
 
 impl Default for QueueConfig {
@@ -73,6 +77,7 @@ impl Default for QueueConfig {
             job_time_limit: Duration::from_secs(600),
             retention: Duration::from_secs(24 * 3600),
             lease: DEFAULT_LEASE,
+            scheduling: Scheduling::default(),
         }
     }
 }
@@ -80,7 +85,9 @@ impl Default for QueueConfig {
 struct State {
     /// Every known job by id (ids sort by creation time).
     jobs: BTreeMap<String, Arc<JobEntry>>,
-    pending: VecDeque<String>,
+    /// The queued and running jobs, by key: the queue itself on the embedded backend, a copy
+    /// of the database's for queue positions on the shared one.
+    fair: FairQueue,
     /// (owner, key) → job id.
     idempotency: HashMap<(Option<String>, String), String>,
     running: usize,
@@ -112,6 +119,7 @@ impl State {
         if let Some(known) = self.jobs.get(&entry.id) {
             return Arc::clone(known);
         }
+        self.fair.track(&entry.record.borrow());
         if let Some(idempotency) = &entry.record.borrow().idempotency {
             self.idempotency.insert(
                 (entry.owner.clone(), idempotency.key.clone()),
@@ -124,7 +132,7 @@ impl State {
 
     /// Drops a deleted job from those known.
     fn forget(&mut self, id: &str) {
-        self.pending.retain(|queued| queued != id);
+        self.fair.forget(id);
         let Some(entry) = self.jobs.remove(id) else {
             return;
         };
@@ -148,7 +156,7 @@ fn deliveries_made(webhook: &Option<Webhook>) -> usize {
 }
 
 /// A page of a listing: each job with its queue position while queued.
-pub type Page = Vec<(JobRecord, Option<usize>)>;
+pub type Page = Vec<(JobRecord, Option<Placement>)>;
 
 /// What admitting a submission did.
 pub enum Admission {
@@ -187,7 +195,7 @@ impl Queue {
         };
         let mut state = State {
             jobs: BTreeMap::new(),
-            pending: VecDeque::new(),
+            fair: FairQueue::default(),
             idempotency: HashMap::new(),
             running: 0,
             draining: false,
@@ -201,7 +209,6 @@ impl Queue {
                     record.requeue();
                     store.remove_outputs(&record.id)?;
                     store.save(&record)?;
-                    state.pending.push_back(record.id.clone());
                 }
                 state.remember(JobEntry::new(record));
             }
@@ -222,6 +229,7 @@ impl Queue {
                     slots: workers,
                     threads: config.threads,
                     lease: config.lease,
+                    scheduling: config.scheduling.clone(),
                 },
             )?)
         } else {
@@ -289,12 +297,15 @@ impl Queue {
     ) -> Result<SystemTime, StoreError> {
         let (changes, mark) = postgres.changes(since)?;
         let depth = postgres.depth()?;
+        let served = postgres.served()?;
         *lock(&self.shared_depth) = depth;
         let mut state = lock(&self.state);
+        state.fair.set_served(served);
         for change in changes {
             match change {
-                Change::Live(record) => match state.jobs.get(&record.id) {
+                Change::Live(record) => match state.jobs.get(&record.id).cloned() {
                     Some(entry) => {
+                        state.fair.track(&record);
                         entry.record.send_if_modified(|current| {
                             let mut record = *record;
                             // Deliveries are made here by this copy: the stored ones may lag.
@@ -365,8 +376,7 @@ impl Queue {
         if self.is_shared() {
             return *lock(&self.shared_depth);
         }
-        let state = lock(&self.state);
-        (state.pending.len(), state.running)
+        lock(&self.state).fair.depth()
     }
 
     /// Ready to take work: not draining and every runner (or job slot) alive.
@@ -402,25 +412,33 @@ impl Queue {
         lock(&self.state).jobs.values().cloned().collect()
     }
 
-    /// Jobs ahead of this one, while it is queued.
-    pub fn queue_position(&self, id: &str) -> Option<usize> {
-        self.position_in(&lock(&self.state), id)
+    /// Where a job stands while it is queued.
+    pub fn placement(&self, id: &str) -> Option<Placement> {
+        self.placement_in(&lock(&self.state), id)
     }
 
-    /// On the shared backend, from the copy: the queued jobs older than this one.
-    fn position_in(&self, state: &State, id: &str) -> Option<usize> {
-        if !self.is_shared() {
-            return state.pending.iter().position(|queued| queued == id);
+    /// The job's place by the fair rule, and its estimated start: the jobs ahead take the mean
+    /// run time of recent successes each, on as many workers as run jobs now (at least this
+    /// process's, at least one), and the running jobs are taken as half done. On the shared
+    /// backend from the copy (as fresh as the follower's last look).
+    fn placement_in(&self, state: &State, id: &str) -> Option<Placement> {
+        let now = now_ms();
+        let position = state.fair.position(id, &self.config.scheduling, now)?;
+        Some(self.placement_at(state, position, now))
+    }
+
+    /// The placement of the job `position` jobs from the front, at `now`.
+    fn placement_at(&self, state: &State, position: usize, now: u64) -> Placement {
+        let running = state.fair.depth().1;
+        let workers = running.max(self.config.workers).max(1);
+        let estimated_start_at = state.fair.mean_run_ms().map(|mean| {
+            let jobs_ahead = position as f64 + running as f64 / 2.0;
+            now + (jobs_ahead * mean as f64 / workers as f64) as u64
+        });
+        Placement {
+            position,
+            estimated_start_at,
         }
-        let queued = |entry: &Arc<JobEntry>| entry.record.borrow().status == Status::Queued;
-        state.jobs.get(id).filter(|entry| queued(entry))?;
-        Some(
-            state
-                .jobs
-                .range(..id.to_owned())
-                .filter(|(_, entry)| queued(entry))
-                .count(),
-        )
     }
 
     /// A page of `owner`'s jobs, newest first, strictly older than `before`, and whether more
@@ -452,15 +470,26 @@ impl Queue {
             }
         }
         let state = lock(&self.state);
-        let page = ids
+        let records: Vec<JobRecord> = ids
             .iter()
             .filter_map(|id| state.jobs.get(id))
             .map(|entry| entry.snapshot())
             // The live state wins over a stored status a failed write left behind.
             .filter(|record| status.is_none_or(|status| record.status == status))
+            .collect();
+        // One pass of the rule places every queued job of the page.
+        let now = now_ms();
+        let positions = match records.iter().any(|r| r.status == Status::Queued) {
+            true => state.fair.positions(&self.config.scheduling, now),
+            false => HashMap::new(),
+        };
+        let page = records
+            .into_iter()
             .map(|record| {
-                let position = self.position_in(&state, &record.id);
-                (record, position)
+                let placement = positions
+                    .get(&record.id)
+                    .map(|&position| self.placement_at(&state, position, now));
+                (record, placement)
             })
             .collect();
         Ok((page, more))
@@ -494,21 +523,49 @@ impl Queue {
         }
     }
 
-    /// Refuses new work when draining or full.
-    pub fn check_capacity(&self) -> Result<(), ApiError> {
+    /// Refuses new work of `client` when draining, when the queue is full, or when the
+    /// client's queued jobs are at its limit. On the shared backend this looks at the copy;
+    /// the insert checks again in the database.
+    pub fn check_capacity(&self, client: &str) -> Result<(), ApiError> {
         let state = lock(&self.state);
-        self.capacity_error(&state).map_or(Ok(()), Err)
+        self.capacity_error(&state, client).map_or(Ok(()), Err)
     }
 
-    fn capacity_error(&self, state: &State) -> Option<ApiError> {
+    fn capacity_error(&self, state: &State, client: &str) -> Option<ApiError> {
         if state.draining {
             return Some(ApiError::ShuttingDown);
         }
         let queued = match self.is_shared() {
             true => lock(&self.shared_depth).0,
-            false => state.pending.len(),
+            false => state.fair.depth().0,
         };
-        (queued >= self.config.max_queued).then(|| self.queue_full(queued))
+        if queued >= self.config.max_queued {
+            return Some(self.queue_full(queued));
+        }
+        let limit = self.config.scheduling.limits_of(client).queued?;
+        let mine = state.fair.queued_of(client);
+        (mine >= limit).then(|| self.key_queue_full(state, limit, mine))
+    }
+
+    /// 429 `key-queue-full`, retry after about the time one of the key's jobs takes to start:
+    /// a mean run time for each key waiting (the rule serves them in turn), shared by the
+    /// workers running now.
+    fn key_queue_full(&self, state: &State, limit: usize, queued: usize) -> ApiError {
+        let mean = state
+            .fair
+            .mean_run_ms()
+            .map(|ms| ms as f64 / 1000.0)
+            .or_else(|| self.metrics.mean_job_seconds())
+            .unwrap_or(10.0);
+        let workers = state.fair.depth().1.max(self.config.workers).max(1);
+        let seconds = (state.fair.keys_waiting() as f64 * mean / workers as f64)
+            .ceil()
+            .max(1.0);
+        ApiError::KeyQueueFull {
+            limit: limit as u64,
+            actual: queued as u64,
+            retry_after: seconds as u64,
+        }
     }
 
     /// 503 `queue-full`, with the time for the queue ahead to clear from the mean job
@@ -570,14 +627,13 @@ impl Queue {
             }
             return admitted;
         }
-        if let Some(error) = self.capacity_error(&state) {
+        if let Some(error) = self.capacity_error(&state, &record.client) {
             return refuse(state, error);
         }
         if let Err(error) = self.store().save(&record) {
             return refuse(state, ApiError::from(error));
         }
         let entry = state.remember(JobEntry::new(record));
-        state.pending.push_back(id);
         drop(state);
         self.changed.notify_one();
         Ok(Admission::Created(entry))
@@ -586,7 +642,8 @@ impl Queue {
     /// Queues a job in the database (the unique index decides between replicas which of two
     /// submissions with one Idempotency-Key is first).
     fn admit_shared(&self, postgres: &Postgres, record: JobRecord) -> Result<Admission, ApiError> {
-        match postgres.insert(&record, self.config.max_queued)? {
+        let key_limit = self.config.scheduling.limits_of(&record.client).queued;
+        match postgres.insert(&record, self.config.max_queued, key_limit)? {
             Inserted::Created => {
                 let entry = lock(&self.state).remember(JobEntry::new(record));
                 Ok(Admission::Created(entry))
@@ -597,6 +654,10 @@ impl Queue {
             }
             Inserted::Existing(_) => Err(ApiError::IdempotencyMismatch),
             Inserted::Full(queued) => Err(self.queue_full(queued)),
+            Inserted::KeyFull(queued) => {
+                let limit = key_limit.unwrap_or(queued);
+                Err(self.key_queue_full(&lock(&self.state), limit, queued))
+            }
         }
     }
 
@@ -616,7 +677,7 @@ impl Queue {
             Status::Queued => {}
             _ => return Ok(false),
         }
-        state.pending.retain(|queued| *queued != entry.id);
+        state.fair.forget(&entry.id);
         drop(state);
         entry.end(
             Status::Canceled,
@@ -639,11 +700,18 @@ impl Queue {
             self.config.retention,
         );
         let outcome = postgres.cancel(&ended)?;
+        if matches!(outcome, Canceled::Ended) {
+            // The follower reads the depth again within FOLLOW_EVERY; until then a job
+            // submitted right after this cancel must not be refused for the room it freed.
+            let mut depth = lock(&self.shared_depth);
+            depth.0 = depth.0.saturating_sub(1);
+        }
         let current = match outcome {
             Canceled::Ended => Some(ended),
             Canceled::Stopping | Canceled::Nothing => postgres.get(&entry.id)?,
         };
         if let Some(current) = current {
+            lock(&self.state).fair.track(&current);
             entry.record.send_replace(current);
         }
         Ok(matches!(outcome, Canceled::Stopping))
@@ -752,27 +820,38 @@ impl Queue {
         }
     }
 
-    /// A runner thread: takes queued jobs in order until draining.
+    /// A runner thread: takes queued jobs by the fair rule until draining.
     fn run_jobs(self: Arc<Self>, pool: &rayon::ThreadPool) {
         loop {
             let mut state = lock(&self.state);
-            while state.pending.is_empty() && !state.draining {
+            let id = loop {
+                if state.draining {
+                    break None;
+                }
+                if let Some(id) = state.fair.next(&self.config.scheduling, now_ms()) {
+                    break Some(id);
+                }
+                // Nothing queued, or only keys at their running limit: a submission or a
+                // job's end changes that.
                 state = self.changed.wait(state).unwrap_or_else(|p| p.into_inner());
-            }
-            if state.draining {
+            };
+            let Some(id) = id else {
                 break;
-            }
-            let id = state.pending.pop_front().expect("checked non-empty");
+            };
             let Some(entry) = state.jobs.get(&id).cloned() else {
+                state.fair.forget(&id);
                 continue;
             };
             state.running += 1;
             // Marked running under the queue lock, so `cancel` never sees a job that is
-            // neither pending nor running.
+            // neither queued nor running.
             entry.record.send_modify(|record| {
                 record.status = Status::Running;
-                record.started_at = Some(super::model::now_ms());
+                record.started_at = Some(now_ms());
             });
+            let client = entry.record.borrow().client.clone();
+            state.fair.track(&entry.record.borrow());
+            state.fair.serve(&client);
             drop(state);
             self.run_job(&entry, pool);
             // Under the lock `delete` reads the status with: either it saw the job running and
@@ -780,7 +859,12 @@ impl Queue {
             let deleted = {
                 let mut state = lock(&self.state);
                 state.running -= 1;
-                entry.deleted.load(Ordering::SeqCst)
+                let deleted = entry.deleted.load(Ordering::SeqCst);
+                if !deleted {
+                    // Ended, or queued again by a shutdown.
+                    state.fair.track(&entry.record.borrow());
+                }
+                deleted
             };
             if deleted {
                 self.remove_deleted_files(&entry.id);

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use super::error::ApiError;
+use super::model::Priority;
 use crate::imageio;
 use crate::pipeline::{Inputs, Masks, ParamLimits, Params};
 
@@ -89,6 +90,8 @@ pub struct Submission {
     pub params: Params,
     /// `webhook` and `webhook_events`, unchecked ([`super::webhooks::Webhooks::target`] checks).
     pub webhook: WebhookRequest,
+    /// `priority`, when sent (default interactive).
+    pub priority: Option<Priority>,
 }
 
 /// The webhook a submission asks for, as sent.
@@ -110,6 +113,7 @@ struct JsonSubmission {
     params: Option<serde_json::Value>,
     webhook: Option<String>,
     webhook_events: Option<Vec<String>>,
+    priority: Option<String>,
 }
 
 /// Reads the body of `POST /v1/jobs`.
@@ -151,7 +155,7 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
     };
     let (mut image, mut albedo, mut masks, mut labels, mut params) =
         (None, None, Vec::new(), None, None);
-    let (mut webhook, mut webhook_events) = (None, None);
+    let (mut webhook, mut webhook_events, mut priority) = (None, None, None);
     while let Some(field) = multipart.next_field().await.map_err(field_error)? {
         let name = field.name().unwrap_or("").to_owned();
         let bytes = field.bytes().await.map_err(field_error)?;
@@ -162,6 +166,7 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
             "params" => &mut params,
             "webhook" => &mut webhook,
             "webhook_events" => &mut webhook_events,
+            "priority" => &mut priority,
             "mask" => {
                 masks.push(bytes);
                 if masks.len() > limits.max_masks {
@@ -200,6 +205,9 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
         masks,
         labels,
         params,
+        priority: priority
+            .map(|priority| parse_priority(&text("priority", priority)?))
+            .transpose()?,
         webhook: WebhookRequest {
             url: webhook.map(|url| text("webhook", url)).transpose()?,
             // A comma-separated list in a form.
@@ -280,6 +288,7 @@ async fn read_json(request: Request, limits: &InputLimits) -> Result<Submission,
             .map(parse_params)
             .transpose()?
             .unwrap_or_default(),
+        priority: json.priority.as_deref().map(parse_priority).transpose()?,
         webhook: WebhookRequest {
             url: json.webhook,
             events: json.webhook_events,
@@ -319,6 +328,14 @@ fn decode_base64(field: &str, text: &str) -> Result<Bytes, ApiError> {
         .decode(payload.trim())
         .map(Bytes::from)
         .map_err(|error| ApiError::BadRequest(format!("`{field}` is not valid base64: {error}")))
+}
+
+fn parse_priority(name: &str) -> Result<Priority, ApiError> {
+    Priority::from_name(name.trim()).ok_or_else(|| {
+        ApiError::InvalidParams(format!(
+            "`priority` is `{name}`; expected `interactive` or `batch`"
+        ))
+    })
 }
 
 fn parse_params(value: serde_json::Value) -> Result<Params, ApiError> {
@@ -361,6 +378,10 @@ impl Submission {
                 b"webhook",
                 &serde_json::to_vec(&self.webhook).expect("strings always serialise"),
             );
+        }
+        // Likewise only when sent.
+        if let Some(priority) = self.priority {
+            part(b"priority", priority.name().as_bytes());
         }
         hex(&hasher.finalize())
     }

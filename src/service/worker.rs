@@ -1,7 +1,7 @@
 //! Workers on the shared backend: job slots that claim queued jobs from PostgreSQL, run them
 //! and save what they left (`covec worker`, and `covec serve --database-url` with workers).
 //!
-//! A slot claims the oldest queued job under a lease ([`Postgres::claim`]); while the job runs
+//! A slot claims the queued job the fair rule picks ([`super::fair`]) under a lease ([`Postgres::claim`]); while the job runs
 //! a heartbeat thread renews the lease, stores the record when it changed (progress and
 //! previews, at most every [`BEAT`]) and learns of a cancel or a delete. Expired leases (a
 //! worker that vanished) are reaped by every slot now and then ([`REAP_EVERY`]). On shutdown
@@ -21,6 +21,7 @@ use axum::response::Response;
 use axum::routing::get;
 
 use super::error::ApiError;
+use super::fair::Scheduling;
 use super::model::CancelReason;
 use super::ops;
 use super::runner::{JobEntry, Runner, Settled, job_pool, lock};
@@ -55,6 +56,8 @@ pub struct WorkerConfig {
     /// How long a claim holds without a heartbeat: after a worker vanishes, its job waits
     /// this long before another worker takes it. Default 30 s.
     pub lease: Duration,
+    /// The rule's batch age and running limits (the same in every process).
+    pub scheduling: Scheduling,
 }
 
 /// The default lease (see [`WorkerConfig::lease`]).
@@ -63,6 +66,7 @@ pub const DEFAULT_LEASE: Duration = Duration::from_secs(30);
 pub struct Workers {
     runner: Arc<Runner>,
     lease: Duration,
+    scheduling: Scheduling,
     draining: AtomicBool,
     /// Jobs being run, for a shutdown past its grace to stop them.
     running: Mutex<Vec<Arc<JobEntry>>>,
@@ -93,6 +97,7 @@ impl Workers {
         let workers = Arc::new(Self {
             runner,
             lease: config.lease.max(BEAT * 2),
+            scheduling: config.scheduling.clone(),
             draining: AtomicBool::new(false),
             running: Mutex::new(Vec::new()),
             changed: Condvar::new(),
@@ -192,7 +197,7 @@ impl Workers {
                 last_reap = Some(Instant::now());
                 reap_expired(self.postgres(), self.runner.retention);
             }
-            match self.postgres().claim(self.lease) {
+            match self.postgres().claim(self.lease, &self.scheduling) {
                 Ok(Some(claim)) => self.run_claim(claim, pool),
                 Ok(None) => {
                     self.pause(IDLE_POLL);

@@ -1,8 +1,9 @@
 //! Job records, the queue and its leases in PostgreSQL (`--database-url`, issue 14), shared by
 //! API replicas (`covec serve`) and workers (`covec worker`).
 //!
-//! The queue is the `jobs` table: a worker claims the oldest queued row with
-//! `FOR UPDATE SKIP LOCKED` (two workers never take one job), holding it by a lease it renews
+//! The queue is the `jobs` table: a worker claims the queued row the fair rule picks
+//! ([`crate::service::fair`]) with `FOR UPDATE SKIP LOCKED` (two workers never take one job),
+//! claims one at a time (an advisory lock), holding it by a lease it renews
 //! while it runs; every write of a running job is fenced by the lease's token, so a worker
 //! whose lease expired can no longer save anything, and a job never ends twice. Leases that
 //! expire (a worker killed) are reaped: the job is queued again, or failed after
@@ -17,6 +18,7 @@
 //! Migrations are the files in `migrations/`, applied in order at start (under an advisory
 //! lock, so replicas starting together apply each once) and recorded in `schema_migrations`.
 
+use std::collections::HashMap;
 use std::str::FromStr;
 use std::time::{Duration, SystemTime};
 
@@ -27,16 +29,24 @@ use super::error::{StoreError, with_sources};
 use super::parse_record;
 use super::postgres_tls::TlsSettings;
 use crate::service::error::Problem;
+use crate::service::fair::Scheduling;
 use crate::service::model::{JobRecord, Status};
 
 /// The schema, version by version; a version once released is never edited.
-const MIGRATIONS: [(i32, &str); 2] = [
+const MIGRATIONS: [(i32, &str); 3] = [
     (1, include_str!("../../../migrations/0001_jobs.sql")),
     (
         2,
         include_str!("../../../migrations/0002_webhook_deliveries.sql"),
     ),
+    (3, include_str!("../../../migrations/0003_fair_queue.sql")),
 ];
+
+/// Advisory lock ids: migrations, claims (one at a time, so each sees the running counts the
+/// last one left), and a client's submissions (its queued count and insert together).
+const MIGRATION_LOCK: i64 = 7_316_290_414;
+const CLAIM_LOCK: i64 = 7_316_290_415;
+const CLIENT_LOCK: i32 = 7316;
 
 /// Runs of one job, the first included, before a job whose worker keeps vanishing is failed
 /// (`workers-lost`): one lost worker is bad luck, three in a row is likely the job itself.
@@ -84,6 +94,8 @@ pub enum Inserted {
     Existing(Box<JobRecord>),
     /// The queue holds this many jobs already.
     Full(usize),
+    /// The job's client has this many jobs queued already, its limit.
+    KeyFull(usize),
 }
 
 /// What asking a job to cancel did.
@@ -184,7 +196,7 @@ impl Postgres {
             let transaction = client.transaction().await?;
             // One replica at a time; the others then find the versions applied.
             transaction
-                .execute("SELECT pg_advisory_xact_lock(7316290414)", &[])
+                .execute("SELECT pg_advisory_xact_lock($1)", &[&MIGRATION_LOCK])
                 .await?;
             transaction
                 .batch_execute(
@@ -218,46 +230,77 @@ impl Postgres {
         })
     }
 
-    /// Inserts a queued job unless the queue holds `max_queued` jobs or a live job has its
-    /// Idempotency-Key (then that job's record).
-    pub fn insert(&self, record: &JobRecord, max_queued: usize) -> Result<Inserted, StoreError> {
+    /// Inserts a queued job unless the queue holds `max_queued` jobs, its client `key_limit`
+    /// queued jobs, or a live job has its Idempotency-Key (then that job's record). The
+    /// client's count and the insert hold its advisory lock, so replicas admitting its jobs
+    /// at once cannot pass the limit together.
+    pub fn insert(
+        &self,
+        record: &JobRecord,
+        max_queued: usize,
+        key_limit: Option<usize>,
+    ) -> Result<Inserted, StoreError> {
         let json = to_json(record);
         let (id, owner) = (record.id.clone(), record.owner.clone());
+        let (job_client, priority) = (record.client.clone(), record.priority.name());
         let key = record.idempotency.as_ref().map(|i| i.key.clone());
         let (replica, lease) = (self.replica.clone(), DELIVERY_LEASE.as_secs_f64());
         let webhook = record.webhook.is_some();
-        self.run(move |client| async move {
+        self.run(move |mut client| async move {
             // The earlier job, looked for first: a replay is answered even when the queue is full.
             if let Some(existing) = by_key(&client, &owner, &key).await? {
                 return Ok(Inserted::Existing(Box::new(existing)));
             }
-            let queued: i64 = client
-                .query_one(
-                    "SELECT count(*) FROM jobs WHERE status = 'queued' AND NOT deleted",
-                    &[],
+            let transaction = client.transaction().await?;
+            transaction
+                .execute(
+                    "SELECT pg_advisory_xact_lock($1, hashtext($2))",
+                    &[&CLIENT_LOCK, &job_client],
                 )
-                .await?
-                .get(0);
-            if queued as usize >= max_queued {
-                return Ok(Inserted::Full(queued as usize));
+                .await?;
+            let row = transaction
+                .query_one(
+                    "SELECT count(*), count(*) FILTER (WHERE client = $1)
+                     FROM jobs WHERE status = 'queued' AND NOT deleted",
+                    &[&job_client],
+                )
+                .await?;
+            let (queued, mine) = (row.get::<_, i64>(0) as usize, row.get::<_, i64>(1) as usize);
+            if queued >= max_queued {
+                return Ok(Inserted::Full(queued));
+            }
+            if key_limit.is_some_and(|limit| mine >= limit) {
+                return Ok(Inserted::KeyFull(mine));
             }
             // With its webhook deliveries claimed by this replica in the same statement, so
             // no job with a webhook is ever without a deliverer.
-            let inserted: i64 = client
+            let inserted: i64 = transaction
                 .query_one(
                     "WITH job AS (
-                         INSERT INTO jobs (id, owner, status, record, idempotency_key)
-                         VALUES ($1, $2, 'queued', $3::text::jsonb, $4)
+                         INSERT INTO jobs (id, owner, status, record, idempotency_key, client,
+                             priority)
+                         VALUES ($1, $2, 'queued', $3::text::jsonb, $4, $8, $9)
                          ON CONFLICT DO NOTHING RETURNING id),
                      deliverer AS (
                          INSERT INTO webhook_deliveries (job_id, replica, lease_expires_at)
                          SELECT id, $5, clock_timestamp() + make_interval(secs => $6)
                          FROM job WHERE $7)
                      SELECT count(*) FROM job",
-                    &[&id, &owner, &json, &key, &replica, &lease, &webhook],
+                    &[
+                        &id,
+                        &owner,
+                        &json,
+                        &key,
+                        &replica,
+                        &lease,
+                        &webhook,
+                        &job_client,
+                        &priority,
+                    ],
                 )
                 .await?
                 .get(0);
+            transaction.commit().await?;
             if inserted == 1 {
                 return Ok(Inserted::Created);
             }
@@ -350,6 +393,23 @@ impl Postgres {
                 )
                 .await?;
             Ok((row.get::<_, i64>(0) as usize, row.get::<_, i64>(1) as usize))
+        })
+    }
+
+    /// When each client last had a job claimed, in Unix ms (for queue positions).
+    pub fn served(&self) -> Result<HashMap<String, u64>, StoreError> {
+        self.run(|client| async move {
+            let rows = client
+                .query(
+                    "SELECT client, (extract(epoch FROM last_served) * 1000)::bigint
+                     FROM queue_clients",
+                    &[],
+                )
+                .await?;
+            Ok(rows
+                .iter()
+                .map(|row| (row.get(0), row.get::<_, i64>(1).max(0) as u64))
+                .collect())
         })
     }
 
@@ -528,31 +588,82 @@ impl Postgres {
         })
     }
 
-    /// Takes the oldest queued job, if any, with a lease of `lease` under a new token; its
-    /// record comes back marked running (started now), one attempt more.
-    pub fn claim(&self, lease: Duration) -> Result<Option<Claim>, StoreError> {
+    /// Takes the queued job the fair rule picks ([`crate::service::fair`]: keys below their
+    /// running limit; interactive first, a batch job counting as interactive once it has
+    /// waited `batch_age`; then the key with the fewest running, the one served longest ago,
+    /// its oldest job), if any, with a lease of `lease` under a new token, and records its
+    /// client as served. Its record comes back marked running (started now), one attempt more.
+    /// Claims take turns (an advisory lock), so each sees the running counts the last left.
+    pub fn claim(&self, lease: Duration, policy: &Scheduling) -> Result<Option<Claim>, StoreError> {
         let token = uuid::Uuid::now_v7().simple().to_string();
-        self.run(move |client| async move {
-            let row = client
+        let default_running = policy.limits.running.map_or(i64::MAX, |limit| limit as i64);
+        let (limited, running_limits): (Vec<String>, Vec<i64>) = policy
+            .overrides
+            .iter()
+            .map(|(client, limits)| {
+                let limit = limits.running.map_or(i64::MAX, |limit| limit as i64);
+                (client.clone(), limit)
+            })
+            .unzip();
+        let batch_age_ms = policy.batch_age.as_millis() as i64;
+        self.run(move |mut client| async move {
+            let transaction = client.transaction().await?;
+            transaction
+                .execute("SELECT pg_advisory_xact_lock($1)", &[&CLAIM_LOCK])
+                .await?;
+            let picked = transaction
                 .query_opt(
+                    "WITH running AS (
+                         SELECT client, count(*) AS jobs FROM jobs
+                         WHERE status = 'running' AND NOT deleted GROUP BY client
+                     ), limits AS (
+                         SELECT * FROM unnest($1::text[], $2::bigint[]) AS l (client, running)
+                     )
+                     SELECT j.id, (extract(epoch FROM statement_timestamp()) * 1000)::bigint
+                     FROM jobs j
+                         LEFT JOIN running r ON r.client = j.client
+                         LEFT JOIN limits l ON l.client = j.client
+                         LEFT JOIN queue_clients s ON s.client = j.client
+                     WHERE j.status = 'queued' AND NOT j.deleted
+                         AND coalesce(r.jobs, 0) < coalesce(l.running, $3)
+                     ORDER BY
+                         j.priority = 'batch' AND (j.record ->> 'created_at')::bigint
+                             > (extract(epoch FROM clock_timestamp()) * 1000)::bigint - $4,
+                         coalesce(r.jobs, 0), s.last_served NULLS FIRST, j.id
+                     LIMIT 1 FOR UPDATE OF j SKIP LOCKED",
+                    &[&limited, &running_limits, &default_running, &batch_age_ms],
+                )
+                .await?;
+            let Some(picked) = picked else {
+                return Ok(None);
+            };
+            let id: String = picked.get(0);
+            // When the choice was made (the statement's start, when it saw the queue): a job
+            // submitted after it was not there to choose.
+            let chosen_at = picked.get::<_, i64>(1).max(0) as u64;
+            let row = transaction
+                .query_one(
                     &format!(
                         "UPDATE jobs SET status = 'running', attempts = attempts + 1,
                              cancel_requested = false, lease_owner = $1,
                              lease_expires_at = clock_timestamp() + make_interval(secs => $2)
-                         WHERE id = (
-                             SELECT id FROM jobs WHERE status = 'queued' AND NOT deleted
-                             ORDER BY id LIMIT 1 FOR UPDATE SKIP LOCKED
-                         )
-                         RETURNING {RECORD_COLUMNS}"
+                         WHERE id = $3
+                         RETURNING {RECORD_COLUMNS}, client"
                     ),
-                    &[&token, &lease.as_secs_f64()],
+                    &[&token, &lease.as_secs_f64(), &id],
                 )
                 .await?;
-            let Some(row) = row else {
-                return Ok(None);
-            };
+            let served: String = row.get(5);
+            transaction
+                .execute(
+                    "INSERT INTO queue_clients (client, last_served) VALUES ($1, clock_timestamp())
+                     ON CONFLICT (client) DO UPDATE SET last_served = excluded.last_served",
+                    &[&served],
+                )
+                .await?;
+            transaction.commit().await?;
             let mut record = record_of(&row)?;
-            record.started_at = Some(crate::service::model::now_ms());
+            record.started_at = Some(chosen_at);
             Ok(Some(Claim { record, token }))
         })
     }
