@@ -34,13 +34,24 @@ scripts/setup-postgres.sh
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
 
 # The service tests again on the shared backend (README, "Scaling out"): every test data directory
-# gets its own throwaway PostgreSQL (tests/service_support). Left out, what only the embedded
-# backend promises: SQLite rows quarantined, files of any age swept at start (the shared backend
-# waits 10 minutes: another replica may be admitting them). COVEC_SKIP_PG_PASS=1 skips it.
+# gets its own throwaway PostgreSQL and its own bucket on one moto S3 server started here
+# (tests/service_support), so every service test runs on both backends; the two disk-fault tests
+# skip themselves there (the results are in the bucket). COVEC_SKIP_PG_PASS=1 skips it.
 if [[ -z "${COVEC_SKIP_PG_PASS:-}" ]]; then
-    COVEC_TEST_BACKEND=postgres cargo nextest run --no-fail-fast --cargo-profile test -E \
-        'binary(/^(service_(api|jobs|edits|faults|fair|hardening|s3|webhooks)|readme_clients)$/)
-         and not test(/^(a_corrupt_job_record|orphaned_job_directories|deleted_jobs_stay_deleted|deletes_on_a_full|results_live_in_the_bucket)/)'
+    s3_port=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+    moto_server -H 127.0.0.1 -p "$s3_port" >/dev/null 2>&1 &
+    moto_pid=$!
+    trap 'kill "$moto_pid" 2>/dev/null || true' EXIT
+    for _ in $(seq 300); do
+        curl -sf -o /dev/null "http://127.0.0.1:$s3_port/" && break
+        sleep 0.1
+    done
+    COVEC_TEST_BACKEND=postgres COVEC_TEST_S3_ENDPOINT="http://127.0.0.1:$s3_port" \
+        cargo nextest run --no-fail-fast --cargo-profile test -E \
+        'binary(/^(service_(api|jobs|edits|faults|fair|hardening|s3|webhooks)|readme_clients)$/)'
+    kill "$moto_pid" 2>/dev/null || true
+    wait "$moto_pid" 2>/dev/null || true
+    trap - EXIT
 fi
 
 # The running service against api/openapi.yaml with schemathesis: every check, every phase

@@ -88,15 +88,6 @@ fn assert_svgs(out: &Path) {
     }
 }
 
-/// Jobs the server holds (one directory per job).
-fn jobs(dir: &DataDir) -> usize {
-    std::fs::read_dir(dir.0.join("jobs")).map_or(0, |entries| {
-        entries
-            .filter(|entry| entry.as_ref().unwrap().path().is_dir())
-            .count()
-    })
-}
-
 /// A keyed server on `dir`, and the README's batch example in `language` written to `file` in
 /// a fresh workspace (checked to stay under 20 lines, as the issue asks).
 fn batch_example(dir: &DataDir, language: &str, file: &str) -> (Server, PathBuf, PathBuf) {
@@ -118,11 +109,11 @@ async fn the_shell_batch_example_vectorises_a_folder_once() {
     let first = run("bash", &script, &[], &root, &server, KEY);
     assert!(first.status.success(), "{}", report(&first));
     assert_svgs(&root.join("out"));
-    assert_eq!(jobs(&dir), IMAGES.len());
+    assert_eq!(dir.jobs_with_files(), IMAGES.len());
     // A re-run makes no new job: the idempotency keys answer with the finished ones.
     let again = run("bash", &script, &[], &root, &server, KEY);
     assert!(again.status.success(), "{}", report(&again));
-    assert_eq!(jobs(&dir), IMAGES.len());
+    assert_eq!(dir.jobs_with_files(), IMAGES.len());
 
     let refused = run("bash", &script, &[], &root, &server, "not-the-key");
     assert!(!refused.status.success(), "{}", report(&refused));
@@ -150,7 +141,7 @@ async fn the_python_batch_example_vectorises_a_folder_once() {
             "{stdout}"
         );
     }
-    assert_eq!(jobs(&dir), IMAGES.len());
+    assert_eq!(dir.jobs_with_files(), IMAGES.len());
     let again = run(
         "python3",
         &script,
@@ -160,7 +151,7 @@ async fn the_python_batch_example_vectorises_a_folder_once() {
         KEY,
     );
     assert!(again.status.success(), "{}", report(&again));
-    assert_eq!(jobs(&dir), IMAGES.len());
+    assert_eq!(dir.jobs_with_files(), IMAGES.len());
 
     let refused = run(
         "python3",

@@ -284,16 +284,14 @@ async fn edits_are_capped_and_their_files_served_without_the_record() {
     );
     assert_eq!(problem(&reply)["code"], "too-many-pixels");
 
-    // The largest edit allowed; then its record is made a directory, which reading fails
-    // on: the files still serve, so serving them never reads the record.
+    // The largest edit allowed; then its record is replaced by bytes that cannot be read as
+    // one: the files still serve, so serving them never reads the record.
     let created = server
         .post_json(&path, &json!({ "changes": vec![change; 4096] }))
         .await;
     assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
     let edit = created.json()["id"].as_str().unwrap().to_owned();
-    let record = dir.0.join(format!("jobs/{id}/edits/{edit}/edit.json"));
-    std::fs::remove_file(&record).unwrap();
-    std::fs::create_dir(&record).unwrap();
+    dir.write_job_file(&id, &format!("edits/{edit}/edit.json"), b"not a record");
     for file in ["preview.png", "svg", "scene.json"] {
         let reply = server
             .get(&format!("/v1/jobs/{id}/edits/{edit}/{file}"))

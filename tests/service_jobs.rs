@@ -127,10 +127,7 @@ async fn a_job_succeeds_and_serves_every_result() {
         server.get(&format!("/v1/jobs/{id}")).await.status,
         StatusCode::NOT_FOUND
     );
-    assert!(
-        !dir.0.join("jobs").join(&id).exists(),
-        "DELETE removes the job's files"
-    );
+    assert!(!dir.job_files_exist(&id), "DELETE removes the job's files");
 }
 
 #[tokio::test]
@@ -431,10 +428,7 @@ async fn results_expire_after_the_retention_period() {
         (gone.status, problem(&gone)["code"].clone()),
         (StatusCode::GONE, json!("data-removed"))
     );
-    assert!(
-        !dir.0.join("jobs").join(&id).exists(),
-        "the files are removed"
-    );
+    assert!(!dir.job_files_exist(&id), "the files are removed");
 }
 
 #[tokio::test]

@@ -4,115 +4,65 @@
 
 mod service_support;
 
-use std::net::TcpStream;
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
 use hyper::{Method, StatusCode};
+use service_support::s3::S3Server;
 use service_support::{DataDir, Server};
 
 const BUCKET: &str = "covec-test";
 const PREFIX: &str = "team/covec";
 
-/// `moto_server` on a free loopback port, killed on drop.
-struct S3Server {
-    child: Child,
-    endpoint: String,
-}
-
-impl S3Server {
-    fn start() -> Self {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
-        let child = Command::new("moto_server")
-            .args(["-H", "127.0.0.1", "-p", &port.to_string()])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("moto_server (scripts/setup-s3.sh installs it)");
-        let started = Instant::now();
-        while TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(
-                started.elapsed() < Duration::from_secs(30),
-                "moto_server did not start"
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        Self {
-            child,
-            endpoint: format!("http://127.0.0.1:{port}"),
-        }
-    }
-
-    /// What `covec serve` needs to reach this server.
-    fn env(&self) -> Vec<(&str, &str)> {
-        vec![
-            ("AWS_ENDPOINT", self.endpoint.as_str()),
-            ("AWS_ALLOW_HTTP", "true"),
-            ("AWS_ACCESS_KEY_ID", "test"),
-            ("AWS_SECRET_ACCESS_KEY", "test"),
-            ("AWS_REGION", "us-east-1"),
-        ]
-    }
-
-    /// An unsigned request (moto accepts them) with curl, for setting up and looking.
-    fn curl(&self, method: &str, path: &str) -> String {
-        let output = Command::new("curl")
-            .args(["-sf", "-X", method, &format!("{}{path}", self.endpoint)])
-            .output()
-            .unwrap();
-        assert!(output.status.success(), "{method} {path}");
-        String::from_utf8(output.stdout).unwrap()
-    }
-
-    /// Keys in the bucket under `prefix`.
-    fn keys(&self, prefix: &str) -> Vec<String> {
-        let listing = self.curl("GET", &format!("/{BUCKET}?list-type=2&prefix={prefix}"));
-        listing
-            .split("<Key>")
-            .skip(1)
-            .map(|rest| rest.split("</Key>").next().unwrap().to_owned())
-            .collect()
-    }
-}
-
-impl Drop for S3Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
+/// A server with its artefacts in `s3`'s bucket; files with no job are orphans after 1 s.
 fn start_covec(dir: &DataDir, s3: &S3Server) -> Server {
     let url = format!("s3://{BUCKET}/{PREFIX}");
+    let env = s3.env();
+    let env: Vec<_> = env
+        .iter()
+        .map(|(name, value)| (name.as_str(), value.as_str()))
+        .collect();
     Server::start_with_env(
         &dir.0,
-        &["--workers", "1", "--object-store", &url],
-        &s3.env(),
+        &[
+            "--workers",
+            "1",
+            "--object-store",
+            &url,
+            "--orphan-age",
+            "1",
+        ],
+        &env,
     )
+}
+
+/// Creates the test's bucket.
+fn make_bucket(s3: &S3Server) {
+    s3.curl("PUT", &format!("/{BUCKET}"), None)
+        .expect("creating the bucket");
 }
 
 #[tokio::test]
 async fn results_live_in_the_bucket_survive_a_restart_and_go_with_delete() {
     let s3 = S3Server::start();
-    s3.curl("PUT", &format!("/{BUCKET}"));
-    // An upload whose record never came (a crash between the two): swept at start.
+    make_bucket(&s3);
+    // An upload whose record never came (a crash between the two): swept at start (on the
+    // shared backend once older than --orphan-age).
     let orphan = format!("{PREFIX}/jobs/job_0000000000000000000000000000dead/input.png");
-    s3.curl("PUT", &format!("/{BUCKET}/{orphan}"));
+    s3.curl("PUT", &format!("/{BUCKET}/{orphan}"), Some(b"png"))
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(2100));
     let dir = DataDir::new("s3");
     let server = start_covec(&dir, &s3);
     assert!(
-        !s3.keys(PREFIX).contains(&orphan),
+        !s3.keys(BUCKET, PREFIX).contains(&orphan),
         "the orphaned upload was not swept"
     );
     let id = server.finished_job().await;
     let svg = server.get(&format!("/v1/jobs/{id}/svg")).await;
     assert_eq!(svg.status, StatusCode::OK);
     assert!(svg.text().contains("<svg"));
-    let keys = s3.keys(&format!("{PREFIX}/jobs/{id}/"));
+    let keys = s3.keys(BUCKET, &format!("{PREFIX}/jobs/{id}/"));
     for name in ["result.svg", "scene.json", "layers/albedo.svg"] {
         assert!(
             keys.contains(&format!("{PREFIX}/jobs/{id}/{name}")),
@@ -142,7 +92,7 @@ async fn results_live_in_the_bucket_survive_a_restart_and_go_with_delete() {
         .await;
     assert_eq!(deleted.status, StatusCode::NO_CONTENT, "{}", deleted.text());
     assert_eq!(
-        s3.keys(&format!("{PREFIX}/jobs/{id}/")),
+        s3.keys(BUCKET, &format!("{PREFIX}/jobs/{id}/")),
         Vec::<String>::new()
     );
     server.stop();
@@ -151,7 +101,7 @@ async fn results_live_in_the_bucket_survive_a_restart_and_go_with_delete() {
 #[tokio::test]
 async fn an_unreachable_bucket_is_not_ready_and_fails_results_with_a_problem() {
     let s3 = S3Server::start();
-    s3.curl("PUT", &format!("/{BUCKET}"));
+    make_bucket(&s3);
     let dir = DataDir::new("s3-down");
     let server = start_covec(&dir, &s3);
     let id = server.finished_job().await;

@@ -72,6 +72,11 @@ pub struct JobArgs {
     /// whose worker vanished runs again elsewhere after this long.
     #[arg(long, env = "COVEC_LEASE_SECONDS", default_value_t = QueueConfig::default().lease.as_secs())]
     lease_seconds: u64,
+    /// Seconds after which a job's files with no job record are removed as left over from an
+    /// interrupted submission (at start too when --database-url is given: other replicas may
+    /// be admitting jobs meanwhile).
+    #[arg(long, env = "COVEC_ORPHAN_AGE", default_value_t = QueueConfig::default().orphan_age.as_secs())]
+    orphan_age: u64,
     /// Seconds running jobs may finish after SIGTERM before they are re-queued for the next start.
     #[arg(long, env = "COVEC_SHUTDOWN_GRACE", default_value_t = Config::default().shutdown_grace.as_secs())]
     shutdown_grace: u64,
@@ -114,6 +119,7 @@ impl JobArgs {
         config.queue.job_time_limit = Duration::from_secs(self.job_time_limit);
         config.queue.retention = Duration::from_secs(self.retention);
         config.queue.lease = Duration::from_secs(self.lease_seconds);
+        config.queue.orphan_age = Duration::from_secs(self.orphan_age);
         config.limits = InputLimits {
             max_body_bytes: config.limits.max_body_bytes,
             max_pixels: self.max_pixels,

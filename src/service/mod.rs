@@ -339,6 +339,7 @@ pub async fn serve(
         state.queue.clone(),
         state.rates.clone(),
         config.queue.retention,
+        config.queue.orphan_age,
     ));
     let metrics_upkeep = tokio::spawn(ops::upkeep(state.metrics.clone()));
     let shutdown = state.shutdown.clone();
@@ -452,7 +453,12 @@ pub async fn work(
 
 /// Removes expired results, job directories no job owns, and the rate state of keys idle for
 /// a while, periodically.
-async fn sweep_expired(queue: Arc<Queue>, rates: Arc<fair::SubmissionRates>, retention: Duration) {
+async fn sweep_expired(
+    queue: Arc<Queue>,
+    rates: Arc<fair::SubmissionRates>,
+    retention: Duration,
+    orphan_age: Duration,
+) {
     let period = (retention / 10).clamp(Duration::from_secs(1), Duration::from_secs(60));
     let mut ticks = tokio::time::interval(period);
     loop {
@@ -462,7 +468,7 @@ async fn sweep_expired(queue: Arc<Queue>, rates: Arc<fair::SubmissionRates>, ret
         let (removed, orphans) = tokio::task::spawn_blocking(move || {
             (
                 queue.expire(model::now_ms()),
-                queue.sweep_orphans(queue::ORPHAN_AGE),
+                queue.sweep_orphans(orphan_age),
             )
         })
         .await

@@ -43,10 +43,6 @@ pub const FOLLOW_EVERY: Duration = Duration::from_millis(200);
 /// delete) before it is purged.
 const TOMBSTONE_AGE: Duration = Duration::from_secs(3600);
 
-/// Age after which a job directory without a job is swept while the server runs: far longer
-/// than a submission takes between writing its files and its record.
-pub const ORPHAN_AGE: Duration = Duration::from_secs(600);
-
 /// Queue and worker settings.
 #[derive(Clone, Debug)]
 pub struct QueueConfig {
@@ -64,6 +60,10 @@ pub struct QueueConfig {
     pub retention: Duration,
     /// Shared backend: how long a worker's claim holds without a heartbeat. Default 30 s.
     pub lease: Duration,
+    /// Age after which a job's files without a record are swept while the server runs (and at
+    /// start on the shared backend, where other replicas may be admitting jobs): far longer
+    /// than a submission takes between writing its files and its record. Default 600 s.
+    pub orphan_age: Duration,
     /// Which job runs next, and what each key may hold.
     pub scheduling: Scheduling,
 }
@@ -77,6 +77,7 @@ impl Default for QueueConfig {
             job_time_limit: Duration::from_secs(600),
             retention: Duration::from_secs(24 * 3600),
             lease: DEFAULT_LEASE,
+            orphan_age: Duration::from_secs(600),
             scheduling: Scheduling::default(),
         }
     }
@@ -254,7 +255,7 @@ impl Queue {
                 .spawn(move || follower.follow_changes(mark))?;
             lock(&queue.runners).push(handle);
             // Other replicas may be admitting jobs: only old directories are orphans.
-            queue.sweep_orphans(ORPHAN_AGE);
+            queue.sweep_orphans(queue.config.orphan_age);
             return Ok(queue);
         }
         // Nothing is being admitted yet: every directory without a record is an orphan.
@@ -464,8 +465,17 @@ impl Queue {
                     .collect()
             };
             for id in missing {
-                if let Some(record) = postgres.get(&id)? {
-                    lock(&self.state).remember(JobEntry::new(record));
+                match postgres.get(&id) {
+                    Ok(Some(record)) => {
+                        lock(&self.state).remember(JobEntry::new(record));
+                    }
+                    Ok(None) => {}
+                    // One unreadable row must not hide the rest of the page (the follower
+                    // leaves it out too; GET of that job is the place to see the problem).
+                    Err(error @ StoreError::CorruptRecord { .. }) => {
+                        warn!(%error, "unreadable job record left out of a listing")
+                    }
+                    Err(error) => return Err(error),
                 }
             }
         }

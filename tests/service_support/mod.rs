@@ -4,6 +4,7 @@
 #![allow(dead_code)] // each test binary uses a different part
 
 pub mod postgres;
+pub mod s3;
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -21,26 +22,74 @@ use hyper_util::rt::TokioExecutor;
 use serde_json::Value;
 
 /// A data directory under the system temp dir, removed on drop. With
-/// `COVEC_TEST_BACKEND=postgres` it comes with its own throwaway PostgreSQL, which every
-/// [`Server`] started on it uses for its records (`--database-url`): the service tests then
-/// run against the shared backend (scripts/test.sh runs some of them both ways).
-pub struct DataDir(pub PathBuf, Option<Box<postgres::Postgres>>);
+/// `COVEC_TEST_BACKEND=postgres` it comes with the shared backend: its own throwaway
+/// PostgreSQL, which every [`Server`] started on it uses for its records (`--database-url`),
+/// and, when the run has an S3 server (`COVEC_TEST_S3_ENDPOINT`, started by scripts/test.sh),
+/// its own bucket there for the artefacts (`--object-store`). scripts/test.sh runs the service
+/// tests both ways; [`DataDir::read_job_file`] and its siblings reach a job's files on either.
+pub struct DataDir(pub PathBuf, Option<Box<Shared>>);
 
-/// The database of each data directory that has one (see [`DataDir`]).
-static DATABASES: Mutex<Vec<(PathBuf, String)>> = Mutex::new(Vec::new());
+/// A data directory's shared backend.
+struct Shared {
+    database: postgres::Postgres,
+    bucket: Option<Bucket>,
+}
+
+/// A bucket of its own on the run's S3 server.
+struct Bucket {
+    server: s3::S3Server,
+    name: String,
+}
+
+/// Where a job's files live in the bucket: `s3://bucket/PREFIX/jobs/ID/…`.
+const BUCKET_PREFIX: &str = "covec";
+
+/// What every server on a data directory gets from its shared backend.
+struct BackendArgs {
+    data_dir: PathBuf,
+    /// `--database-url URL`, then `--object-store URL` with a bucket.
+    args: Vec<String>,
+    /// The bucket's server's AWS_* variables.
+    env: Vec<(String, String)>,
+}
+
+static BACKENDS: Mutex<Vec<BackendArgs>> = Mutex::new(Vec::new());
 
 impl DataDir {
     pub fn new(name: &str) -> Self {
         let mut dir = Self::plain(name);
         if std::env::var("COVEC_TEST_BACKEND").as_deref() == Ok("postgres") {
             let database = postgres::Postgres::start();
-            lock(&DATABASES).push((dir.0.clone(), database.url.clone()));
-            dir.1 = Some(Box::new(database));
+            let mut args = vec!["--database-url".to_owned(), database.url.clone()];
+            let mut env = Vec::new();
+            let bucket = s3::S3Server::shared().map(|server| {
+                static NEXT: AtomicUsize = AtomicUsize::new(0);
+                let name = format!(
+                    "covec-{}-{}",
+                    std::process::id(),
+                    NEXT.fetch_add(1, Ordering::SeqCst)
+                );
+                server
+                    .curl("PUT", &format!("/{name}"), None)
+                    .expect("creating the bucket");
+                args.extend([
+                    "--object-store".to_owned(),
+                    format!("s3://{name}/{BUCKET_PREFIX}"),
+                ]);
+                env = server.env();
+                Bucket { server, name }
+            });
+            lock(&BACKENDS).push(BackendArgs {
+                data_dir: dir.0.clone(),
+                args,
+                env,
+            });
+            dir.1 = Some(Box::new(Shared { database, bucket }));
         }
         dir
     }
 
-    /// A data directory without a database.
+    /// A data directory without a shared backend.
     pub fn plain(name: &str) -> Self {
         static NEXT: AtomicUsize = AtomicUsize::new(0);
         let path = std::env::temp_dir().join(format!(
@@ -52,6 +101,113 @@ impl DataDir {
         std::fs::create_dir_all(&path).unwrap();
         Self(path, None)
     }
+
+    /// Whether this directory's servers keep records in PostgreSQL.
+    pub fn is_shared(&self) -> bool {
+        self.1.is_some()
+    }
+
+    /// The bucket holding this directory's artefacts, if they are not on the local disk.
+    fn bucket(&self) -> Option<&Bucket> {
+        self.1.as_ref().and_then(|shared| shared.bucket.as_ref())
+    }
+
+    /// Whether a job's files are on the local disk (so disk faults can reach them).
+    pub fn keeps_files_locally(&self) -> bool {
+        self.bucket().is_none()
+    }
+
+    /// The database, on the shared backend.
+    pub fn database(&self) -> Option<&postgres::Postgres> {
+        self.1.as_ref().map(|shared| &shared.database)
+    }
+
+    fn job_key(bucket: &Bucket, id: &str, name: &str) -> String {
+        format!("/{}/{BUCKET_PREFIX}/jobs/{id}/{name}", bucket.name)
+    }
+
+    /// A job's stored file (`name` as in the job's folder, e.g. `result.svg`), if present.
+    pub fn read_job_file(&self, id: &str, name: &str) -> Option<Vec<u8>> {
+        match self.bucket() {
+            Some(bucket) => bucket
+                .server
+                .curl("GET", &Self::job_key(bucket, id, name), None),
+            None => std::fs::read(self.0.join("jobs").join(id).join(name)).ok(),
+        }
+    }
+
+    /// Replaces (or creates) a job's stored file.
+    pub fn write_job_file(&self, id: &str, name: &str, bytes: &[u8]) {
+        match self.bucket() {
+            Some(bucket) => {
+                bucket
+                    .server
+                    .curl("PUT", &Self::job_key(bucket, id, name), Some(bytes))
+                    .expect("writing to the bucket");
+            }
+            None => {
+                let path = self.0.join("jobs").join(id).join(name);
+                std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+                std::fs::write(path, bytes).unwrap();
+            }
+        }
+    }
+
+    /// Whether any file of job `id` is stored.
+    pub fn job_files_exist(&self, id: &str) -> bool {
+        match self.bucket() {
+            Some(bucket) => !bucket
+                .server
+                .keys(&bucket.name, &format!("{BUCKET_PREFIX}/jobs/{id}/"))
+                .is_empty(),
+            None => self.0.join("jobs").join(id).exists(),
+        }
+    }
+
+    /// Makes every later store of a job's files fail: the jobs directory replaced by a file
+    /// (root ignores permissions), or the bucket emptied and removed.
+    pub fn break_storage(&self) {
+        match self.bucket() {
+            Some(bucket) => {
+                for key in bucket.server.keys(&bucket.name, "") {
+                    bucket
+                        .server
+                        .curl("DELETE", &format!("/{}/{key}", bucket.name), None)
+                        .expect("emptying the bucket");
+                }
+                bucket
+                    .server
+                    .curl("DELETE", &format!("/{}", bucket.name), None)
+                    .expect("removing the bucket");
+            }
+            None => {
+                let jobs = self.0.join("jobs");
+                let _ = std::fs::remove_dir_all(&jobs);
+                std::fs::write(&jobs, b"not a directory").unwrap();
+            }
+        }
+    }
+
+    /// How many jobs have files stored.
+    pub fn jobs_with_files(&self) -> usize {
+        match self.bucket() {
+            Some(bucket) => {
+                let keys = bucket
+                    .server
+                    .keys(&bucket.name, &format!("{BUCKET_PREFIX}/jobs/"));
+                let ids: std::collections::BTreeSet<_> = keys
+                    .iter()
+                    .filter_map(|key| key.split('/').nth(2))
+                    .collect();
+                ids.len()
+            }
+            None => std::fs::read_dir(self.0.join("jobs")).map_or(0, |entries| {
+                entries
+                    .filter(|entry| entry.as_ref().unwrap().path().is_dir())
+                    .count()
+            }),
+        }
+    }
 }
 
 fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -60,18 +216,22 @@ fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
         .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-/// `--database-url` for a server on `data_dir`, when the directory has a database.
-fn database_args(data_dir: &Path) -> Vec<String> {
-    lock(&DATABASES)
+/// The shared backend's arguments and environment for a server on `data_dir`; an
+/// `--object-store` of the test's own (`own_store`) wins over the backend's bucket.
+fn backend_args(data_dir: &Path, own_store: bool) -> (Vec<String>, Vec<(String, String)>) {
+    lock(&BACKENDS)
         .iter()
-        .find(|(dir, _)| dir == data_dir)
-        .map(|(_, url)| vec!["--database-url".to_owned(), url.clone()])
+        .find(|backend| backend.data_dir == data_dir)
+        .map(|backend| match own_store {
+            true => (backend.args[..2].to_vec(), Vec::new()),
+            false => (backend.args.clone(), backend.env.clone()),
+        })
         .unwrap_or_default()
 }
 
 impl Drop for DataDir {
     fn drop(&mut self) {
-        lock(&DATABASES).retain(|(dir, _)| *dir != self.0);
+        lock(&BACKENDS).retain(|backend| backend.data_dir != self.0);
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }
@@ -122,11 +282,13 @@ impl Server {
         env: &[(&str, &str)],
     ) -> Self {
         let log = std::fs::File::create(log_path).unwrap();
+        let (backend_args, backend_env) = backend_args(data_dir, args.contains(&"--object-store"));
         let mut child = Command::new(env!("CARGO_BIN_EXE_covec"))
             .args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
             .arg(data_dir)
-            .args(database_args(data_dir))
+            .args(backend_args)
             .args(args)
+            .envs(backend_env)
             .envs(env.iter().copied())
             .env("COVEC_LOG", "info")
             .stdout(Stdio::piped())
