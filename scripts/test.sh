@@ -35,8 +35,8 @@ cargo nextest run --no-fail-fast --cargo-profile test "$@"
 
 # The service tests again on the shared backend (README, "Scaling out"): every test data directory
 # gets its own throwaway PostgreSQL and its own bucket on one moto S3 server started here
-# (tests/service_support), so every service test runs on both backends; the two disk-fault tests
-# skip themselves there (the results are in the bucket). COVEC_SKIP_PG_PASS=1 skips it.
+# (tests/service_support), so every service test runs on both backends (the two disk-fault tests
+# with their files on the local disk). COVEC_SKIP_PG_PASS=1 skips it.
 if [[ -z "${COVEC_SKIP_PG_PASS:-}" ]]; then
     s3_port=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
     moto_server -H 127.0.0.1 -p "$s3_port" >/dev/null 2>&1 &

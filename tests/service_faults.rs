@@ -454,16 +454,13 @@ impl Drop for Tmpfs {
 /// elsewhere.
 #[tokio::test(flavor = "multi_thread")]
 async fn deletes_on_a_full_or_read_only_disk_leave_no_half_done_state() {
-    let dir = DataDir::new("full-disk");
-    if !dir.keeps_files_locally() {
-        eprintln!("SKIPPED: the results are in a bucket, out of the disk faults' reach");
-        return;
-    }
+    let dir = DataDir::with_local_files("full-disk");
     let Some(tmpfs) = Tmpfs::mount(&dir.0, "24m") else {
         eprintln!("SKIPPED: cannot mount a tmpfs here (needs root); full-disk case not run");
         return;
     };
-    let args = ["--workers", "1"];
+    // The shared backend sweeps files a delete left at start once this old.
+    let args = ["--workers", "1", "--orphan-age", "1"];
     let server = Server::start(&dir.0, &args);
     let mut jobs = Vec::new();
     for _ in 0..3 {
@@ -509,6 +506,7 @@ async fn deletes_on_a_full_or_read_only_disk_leave_no_half_done_state() {
     );
     // Consistent now and after a restart (with the files swept once the disk is back).
     server.kill();
+    tokio::time::sleep(Duration::from_millis(1100)).await;
     let server = Server::start(&dir.0, &args);
     for (id, reply) in [(&jobs[0], &full), (&jobs[1], &read_only)] {
         let job = server.get(&format!("/v1/jobs/{id}")).await;
@@ -571,11 +569,7 @@ async fn damaged_results_are_problems_not_200s() {
 /// loudly, elsewhere.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_job_meeting_a_full_disk_retries_its_writes_and_succeeds() {
-    let dir = DataDir::new("transient");
-    if !dir.keeps_files_locally() {
-        eprintln!("SKIPPED: the results are in a bucket, out of the disk faults' reach");
-        return;
-    }
+    let dir = DataDir::with_local_files("transient");
     let Some(tmpfs) = Tmpfs::mount(&dir.0, "24m") else {
         eprintln!("SKIPPED: cannot mount a tmpfs here (needs root); transient-error case not run");
         return;

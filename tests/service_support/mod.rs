@@ -29,6 +29,15 @@ use serde_json::Value;
 /// tests both ways; [`DataDir::read_job_file`] and its siblings reach a job's files on either.
 pub struct DataDir(pub PathBuf, Option<Box<Shared>>);
 
+/// Where a data directory's servers keep job files.
+#[derive(PartialEq)]
+enum Files {
+    /// In the backend's bucket, when the run has an S3 server; else under the directory.
+    Backend,
+    /// Under the directory.
+    Local,
+}
+
 /// A data directory's shared backend.
 struct Shared {
     database: postgres::Postgres,
@@ -57,12 +66,23 @@ static BACKENDS: Mutex<Vec<BackendArgs>> = Mutex::new(Vec::new());
 
 impl DataDir {
     pub fn new(name: &str) -> Self {
+        Self::with_files(name, Files::Backend)
+    }
+
+    /// A data directory whose servers keep job files under it on either backend (for tests of
+    /// faults of the disk under them).
+    pub fn with_local_files(name: &str) -> Self {
+        Self::with_files(name, Files::Local)
+    }
+
+    fn with_files(name: &str, files: Files) -> Self {
         let mut dir = Self::plain(name);
         if std::env::var("COVEC_TEST_BACKEND").as_deref() == Ok("postgres") {
             let database = postgres::Postgres::start();
             let mut args = vec!["--database-url".to_owned(), database.url.clone()];
             let mut env = Vec::new();
-            let bucket = s3::S3Server::shared().map(|server| {
+            let server = s3::S3Server::shared().filter(|_| files == Files::Backend);
+            let bucket = server.map(|server| {
                 static NEXT: AtomicUsize = AtomicUsize::new(0);
                 let name = format!(
                     "covec-{}-{}",
