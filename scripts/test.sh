@@ -39,7 +39,7 @@ cargo nextest run --no-fail-fast --cargo-profile test "$@"
 # waits 10 minutes: another replica may be admitting them). COVEC_SKIP_PG_PASS=1 skips it.
 if [[ -z "${COVEC_SKIP_PG_PASS:-}" ]]; then
     COVEC_TEST_BACKEND=postgres cargo nextest run --no-fail-fast --cargo-profile test -E \
-        'binary(/^(service_(api|jobs|edits|faults|fair|hardening|s3|webhooks)|readme_clients)$/)
+        'binary(/^(service_(api|jobs|edits|faults|fair|hardening|records|s3|webhooks)|readme_clients)$/)
          and not test(/^(a_corrupt_job_record|orphaned_job_directories|deleted_jobs_stay_deleted|deletes_on_a_full|results_live_in_the_bucket)/)'
 fi
 

@@ -40,6 +40,11 @@ impl DataDir {
         dir
     }
 
+    /// Its PostgreSQL, when the service tests run on the shared backend.
+    pub fn database(&self) -> Option<&postgres::Postgres> {
+        self.1.as_deref()
+    }
+
     /// A data directory without a database.
     pub fn plain(name: &str) -> Self {
         static NEXT: AtomicUsize = AtomicUsize::new(0);
