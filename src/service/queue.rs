@@ -5,11 +5,12 @@
 //! something holds them (an event stream, a webhook delivery, a request). Every other record is
 //! read from the [`Store`] when asked for, so memory does not grow with the jobs ever run, and
 //! records are deleted after the record retention ([`Queue::expire`]). On the embedded backend
-//! live state is written through to the store on every status change. On the shared backend (PostgreSQL) the database is the
-//! truth and the memory a copy: the queue, leases and idempotency keys are rows, jobs run in
-//! [`Workers`] (here or in `covec worker` processes), and a follower thread brings every
-//! change made anywhere into the copy every [`FOLLOW_EVERY`], so polls, listings and SSE on
-//! any replica see jobs running on any worker.
+//! live state is written through to the store on every status change. On the shared backend
+//! (PostgreSQL) the database is the truth and the memory a copy: the queue, leases and
+//! idempotency keys are rows, jobs run in [`Workers`] (here or in `covec worker` processes),
+//! and a follower thread brings every change made anywhere to the jobs in the copy (and the
+//! queued and running jobs into it) every [`FOLLOW_EVERY`], so polls, listings and SSE on any
+//! replica see jobs running on any worker.
 //!
 //! Embedded: `workers` runner threads take queued jobs by the fair rule ([`super::fair`]);
 //! each runs its job's pipeline inside its own rayon pool (`threads / workers` threads), so the
@@ -229,8 +230,8 @@ pub enum QueueError {
 }
 
 impl Queue {
-    /// Loads the queued and running jobs, re-queues those that were running when the server
-    /// stopped, and starts the runners. Call from inside the tokio runtime.
+    /// Loads the queued and running jobs, queued again (a run cut short by the stop starts
+    /// over), and starts the runners. Call from inside the tokio runtime.
     pub fn start(
         config: QueueConfig,
         limits: InputLimits,
