@@ -180,6 +180,14 @@ pub struct ServeArgs {
     /// Most jobs waiting for a worker; more get 503 with Retry-After.
     #[arg(long, env = "COVEC_MAX_QUEUED", default_value_t = QueueConfig::default().max_queued)]
     max_queued: usize,
+    /// How long a job's record is kept after the job ends, in seconds (results go earlier,
+    /// after --retention); then the job answers 410 Gone, for as long again, then 404.
+    #[arg(long, env = "COVEC_RECORD_RETENTION", default_value_t = QueueConfig::default().record_retention.as_secs())]
+    record_retention: u64,
+    /// Seconds an Idempotency-Key holds after its job was created; a reuse after that creates
+    /// a new job.
+    #[arg(long, env = "COVEC_IDEMPOTENCY_WINDOW", default_value_t = QueueConfig::default().idempotency_window.as_secs())]
+    idempotency_window: u64,
     /// Largest request body, in bytes.
     #[arg(long, env = "COVEC_MAX_BODY_BYTES", default_value_t = InputLimits::default().max_body_bytes)]
     max_body_bytes: u64,
@@ -232,6 +240,8 @@ impl ServeArgs {
             addr: self.addr,
             queue: QueueConfig {
                 max_queued: self.max_queued,
+                record_retention: Duration::from_secs(self.record_retention),
+                idempotency_window: Duration::from_secs(self.idempotency_window),
                 ..QueueConfig::default()
             },
             limits: InputLimits {

@@ -39,6 +39,8 @@ pub enum ApiError {
     Unauthorized,
     #[error("no job `{0}`")]
     JobNotFound(String),
+    #[error("job `{0}` ended longer ago than this server keeps job records; its record is deleted")]
+    JobExpired(String),
     #[error("`{0}` is not a job id (expected `job_` followed by 32 lowercase hex digits)")]
     MalformedJobId(String),
     #[error("no route for {0}")]
@@ -139,7 +141,7 @@ impl ApiError {
             KeyQueueFull { .. } | RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
             QueueFull(..) | DecodeBusy(_) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             NotReady(..) => StatusCode::CONFLICT,
-            DataRemoved(_) => StatusCode::GONE,
+            DataRemoved(_) | JobExpired(_) => StatusCode::GONE,
             TimeLimit(_) => StatusCode::REQUEST_TIMEOUT,
             PipelineCrashed(_) | WorkersLost(_) | CorruptResult(_) | Internal(_) => {
                 StatusCode::INTERNAL_SERVER_ERROR
@@ -153,6 +155,7 @@ impl ApiError {
         match self {
             Unauthorized => "unauthorized",
             JobNotFound(_) => "job-not-found",
+            JobExpired(_) => "job-expired",
             MalformedJobId(_) => "malformed-job-id",
             RouteNotFound(_) => "route-not-found",
             MethodNotAllowed(_) => "method-not-allowed",

@@ -33,28 +33,26 @@ pub fn endpoints() -> Vec<Endpoint> {
     ]
 }
 
-/// The job `id` if it is well-formed, exists and belongs to `owner`. A job missing from the
-/// copy is looked up in the shared database off the async threads (so a slow or unreachable
-/// database holds up only the requests that need it), and a failed lookup is an error, not a
-/// 404 (a client must not take a job for gone while the database is down).
+/// The job `id` if it is well-formed, exists and belongs to `owner`; `410 Gone` when its
+/// record expired. Looked up off the async threads (a job not in memory is read from the
+/// store, so a slow or unreachable database holds up only the requests that need it), and a
+/// failed lookup is an error, not a 404 (a client must not take a job for gone while the
+/// database is down).
 pub async fn find(state: &AppState, owner: &Owner, id: &str) -> Result<Arc<JobEntry>, ApiError> {
     if !is_job_id(id) {
         return Err(ApiError::MalformedJobId(id.to_owned()));
     }
     tracing::Span::current().record("job_id", id);
-    let found = match state.queue.cached(id) {
-        Some(entry) => Some(entry),
-        None if state.queue.is_shared() => {
-            let (queue, id) = (Arc::clone(&state.queue), id.to_owned());
-            tokio::task::spawn_blocking(move || queue.load(&id))
-                .await
-                .map_err(|error| ApiError::Internal(error.to_string()))??
+    let (queue, id, owner) = (Arc::clone(&state.queue), id.to_owned(), owner.0.clone());
+    tokio::task::spawn_blocking(move || {
+        match queue.find(&id)?.filter(|entry| entry.owner == owner) {
+            Some(entry) => Ok(entry),
+            None if queue.expired(&id, &owner)? => Err(ApiError::JobExpired(id)),
+            None => Err(ApiError::JobNotFound(id)),
         }
-        None => None,
-    };
-    found
-        .filter(|entry| entry.owner == owner.0)
-        .ok_or_else(|| ApiError::JobNotFound(id.to_owned()))
+    })
+    .await
+    .map_err(|error| ApiError::Internal(error.to_string()))?
 }
 
 fn view(state: &AppState, entry: &JobEntry) -> JobView {
@@ -117,7 +115,17 @@ async fn create(
         .webhooks
         .target(std::mem::take(&mut submission.webhook))?;
     if let Some(key) = &key {
-        if let Some(earlier) = state.queue.find_idempotent(&owner.0, key, &fingerprint)? {
+        let (queue, owner, key, print) = (
+            state.queue.clone(),
+            owner.0.clone(),
+            key.clone(),
+            fingerprint.clone(),
+        );
+        let earlier =
+            tokio::task::spawn_blocking(move || queue.find_idempotent(&owner, &key, &print))
+                .await
+                .map_err(|error| ApiError::Internal(error.to_string()))??;
+        if let Some(earlier) = earlier {
             return Ok(created(&state, &earlier, true));
         }
         state.queue.check_capacity(&client)?;

@@ -178,6 +178,7 @@ impl AppState {
             metrics.clone(),
         )?;
         let webhooks = webhooks::Webhooks::start(config.webhooks.clone(), queue.clone())?;
+        webhooks.resume()?;
         Ok(Self {
             webhooks,
             queue,
@@ -338,7 +339,11 @@ pub async fn serve(
     let sweeper = tokio::spawn(sweep_expired(
         state.queue.clone(),
         state.rates.clone(),
-        config.queue.retention,
+        config
+            .queue
+            .retention
+            .min(config.queue.record_retention)
+            .min(config.queue.idempotency_window),
         config.queue.orphan_age,
     ));
     let metrics_upkeep = tokio::spawn(ops::upkeep(state.metrics.clone()));
@@ -451,8 +456,9 @@ pub async fn work(
     Ok(())
 }
 
-/// Removes expired results, job directories no job owns, and the rate state of keys idle for
-/// a while, periodically.
+/// Removes expired results, records and Idempotency-Keys, job directories no job owns, and
+/// the rate state of keys idle for a while, periodically (a tenth of the shortest of
+/// `retention` and the other two periods, 1 to 60 s).
 async fn sweep_expired(
     queue: Arc<Queue>,
     rates: Arc<fair::SubmissionRates>,

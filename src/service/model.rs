@@ -250,6 +250,18 @@ pub struct Webhook {
     pub deliveries: Vec<Delivery>,
 }
 
+impl Webhook {
+    /// Whether an event asked for is not yet delivered or given up.
+    pub fn unfinished(&self) -> bool {
+        self.events.iter().any(|event| {
+            self.deliveries
+                .iter()
+                .find(|delivery| delivery.event == *event)
+                .is_none_or(|delivery| delivery.status == DeliveryStatus::Pending)
+        })
+    }
+}
+
 /// What a webhook can announce.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

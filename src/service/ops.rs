@@ -59,19 +59,34 @@ pub async fn readiness(
 }
 
 async fn metrics(State(state): State<AppState>) -> Response {
-    metrics_text(
-        &state.metrics,
-        Some(state.queue.depth()),
-        state.queue.workers(),
-    )
+    let (queued, running) = state.queue.depth();
+    let queue = QueueGauges {
+        queued,
+        running,
+        in_memory: state.queue.in_memory(),
+    };
+    metrics_text(&state.metrics, Some(queue), state.queue.workers())
 }
 
-/// The `/metrics` answer: what `metrics` recorded, with the queue's (queued, running) depth
-/// where known (API processes) and the number of job workers.
-pub fn metrics_text(metrics: &Metrics, depth: Option<(usize, usize)>, workers: usize) -> Response {
+/// What an API process's queue shows on `/metrics`.
+pub struct QueueGauges {
+    pub queued: usize,
+    pub running: usize,
+    /// Jobs whose state is held in memory: the live ones and ended ones in use (the rest are
+    /// read from the store when asked for).
+    pub in_memory: usize,
+}
+
+/// The `/metrics` answer: what `metrics` recorded, with the queue's gauges where known (API
+/// processes) and the number of job workers.
+pub fn metrics_text(metrics: &Metrics, queue: Option<QueueGauges>, workers: usize) -> Response {
     let mut gauges = vec![(WORKERS, workers as f64)];
-    if let Some((queued, running)) = depth {
-        gauges.extend([(JOBS_QUEUED, queued as f64), (JOBS_RUNNING, running as f64)]);
+    if let Some(queue) = queue {
+        gauges.extend([
+            (JOBS_QUEUED, queue.queued as f64),
+            (JOBS_RUNNING, queue.running as f64),
+            (JOBS_IN_MEMORY, queue.in_memory as f64),
+        ]);
     }
     (
         [(
@@ -111,6 +126,7 @@ fn method_label(method: &Method) -> &'static str {
 
 const JOBS_QUEUED: &str = "covec_jobs_queued";
 const JOBS_RUNNING: &str = "covec_jobs_running";
+const JOBS_IN_MEMORY: &str = "covec_jobs_in_memory";
 const WORKERS: &str = "covec_workers";
 const JOBS_QUARANTINED: &str = "covec_jobs_quarantined";
 const ORPHANS_SWEPT: &str = "covec_orphans_swept_total";
@@ -149,10 +165,14 @@ impl Default for Metrics {
         metrics::with_local_recorder(&recorder, || {
             metrics::describe_gauge!(JOBS_QUEUED, "Jobs waiting for a worker.");
             metrics::describe_gauge!(JOBS_RUNNING, "Jobs being run.");
+            metrics::describe_gauge!(
+                JOBS_IN_MEMORY,
+                "Jobs held in memory: queued, running, and ended ones in use."
+            );
             metrics::describe_gauge!(WORKERS, "Configured job workers.");
             metrics::describe_gauge!(
                 JOBS_QUARANTINED,
-                "Unreadable job records moved to quarantine at start."
+                "Unreadable job records moved to quarantine since start."
             );
             metrics::describe_counter!(ORPHANS_SWEPT, "Job directories without a job removed.");
             metrics::describe_histogram!(JOB_DURATION, "Run time of finished jobs by outcome.");
@@ -191,9 +211,10 @@ impl Metrics {
         }
     }
 
-    pub fn set_quarantined(&self, count: usize) {
+    /// Counts records moved to quarantine: at start, or when an ended one is first read.
+    pub fn quarantined(&self, count: usize) {
         metrics::with_local_recorder(&self.recorder, || {
-            metrics::gauge!(JOBS_QUARANTINED).set(count as f64);
+            metrics::gauge!(JOBS_QUARANTINED).increment(count as f64);
         });
     }
 

@@ -1,12 +1,16 @@
 //! The job queue and its workers.
 //!
 //! Live job state is held in memory (one `watch` channel per job, so polls and SSE streams read
-//! it without touching the database). On the embedded backend it is written through to the
-//! [`Store`] on every status change. On the shared backend (PostgreSQL) the database is the
-//! truth and the memory a copy: the queue, leases and idempotency keys are rows, jobs run in
-//! [`Workers`] (here or in `covec worker` processes), and a follower thread brings every
-//! change made anywhere into the copy every [`FOLLOW_EVERY`], so polls, listings and SSE on
-//! any replica see jobs running on any worker.
+//! it without touching the database): the queued and running jobs, and ended jobs only while
+//! something holds them (an event stream, a webhook delivery, a request). Every other record is
+//! read from the [`Store`] when asked for, so memory does not grow with the jobs ever run, and
+//! records are deleted after the record retention ([`Queue::expire`]). On the embedded backend
+//! live state is written through to the store on every status change. On the shared backend
+//! (PostgreSQL) the database is the truth and the memory a copy: the queue, leases and
+//! idempotency keys are rows, jobs run in [`Workers`] (here or in `covec worker` processes),
+//! and a follower thread brings every change made anywhere to the jobs in the copy (and the
+//! queued and running jobs into it) every [`FOLLOW_EVERY`], so polls, listings and SSE on any
+//! replica see jobs running on any worker.
 //!
 //! Embedded: `workers` runner threads take queued jobs by the fair rule ([`super::fair`]);
 //! each runs its job's pipeline inside its own rayon pool (`threads / workers` threads), so the
@@ -16,6 +20,7 @@
 //! ends.
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::Weak;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -43,6 +48,13 @@ pub const FOLLOW_EVERY: Duration = Duration::from_millis(200);
 /// delete) before it is purged.
 const TOMBSTONE_AGE: Duration = Duration::from_secs(3600);
 
+/// Most records one statement of [`Queue::expire`] handles: its transaction stays short, and a
+/// backlog (a server stopped for days) is worked off in batches.
+const EXPIRY_BATCH: usize = 1000;
+
+/// Ended jobs held in memory below which [`State::hold`] does not look for released ones.
+const HELD_PRUNE_MIN: usize = 256;
+
 /// Queue and worker settings.
 #[derive(Clone, Debug)]
 pub struct QueueConfig {
@@ -58,6 +70,13 @@ pub struct QueueConfig {
     pub job_time_limit: Duration,
     /// How long results are kept after a job ends. Default 24 h.
     pub retention: Duration,
+    /// How long a job's record is kept after it ends; then the job answers `410 Gone` (for as
+    /// long again) and then `404`. Separate from `retention`: a client may look at what became
+    /// of a job long after its results are gone. Default 30 days.
+    pub record_retention: Duration,
+    /// How long an Idempotency-Key holds after its job was created; a reuse after that creates
+    /// a new job. Default 24 h.
+    pub idempotency_window: Duration,
     /// Shared backend: how long a worker's claim holds without a heartbeat. Default 30 s.
     pub lease: Duration,
     /// Age after which a job's files without a record are swept while the server runs (and at
@@ -76,6 +95,8 @@ impl Default for QueueConfig {
             max_queued: 64,
             job_time_limit: Duration::from_secs(600),
             retention: Duration::from_secs(24 * 3600),
+            record_retention: Duration::from_secs(30 * 24 * 3600),
+            idempotency_window: Duration::from_secs(24 * 3600),
             lease: DEFAULT_LEASE,
             orphan_age: Duration::from_secs(600),
             scheduling: Scheduling::default(),
@@ -84,13 +105,18 @@ impl Default for QueueConfig {
 }
 
 struct State {
-    /// Every known job by id (ids sort by creation time).
-    jobs: BTreeMap<String, Arc<JobEntry>>,
+    /// The queued and running jobs by id (ids sort by creation time).
+    live: BTreeMap<String, Arc<JobEntry>>,
+    /// Ended jobs by id while something holds their entry, so every holder shares one (a
+    /// webhook delivery's record changes reach a poll); released ones are pruned in
+    /// [`State::hold`].
+    held: HashMap<String, Weak<JobEntry>>,
+    /// `held`'s size at which it is next pruned: twice its size after the last pruning, so
+    /// pruning costs O(1) per entry and `held` stays within twice the entries in use.
+    prune_at: usize,
     /// The queued and running jobs, by key: the queue itself on the embedded backend, a copy
     /// of the database's for queue positions on the shared one.
     fair: FairQueue,
-    /// (owner, key) → job id.
-    idempotency: HashMap<(Option<String>, String), String>,
     running: usize,
     draining: bool,
 }
@@ -115,32 +141,58 @@ pub struct Queue {
 }
 
 impl State {
+    /// The job's entry, if it is live or held.
+    fn get(&self, id: &str) -> Option<Arc<JobEntry>> {
+        self.live
+            .get(id)
+            .cloned()
+            .or_else(|| self.held.get(id).and_then(Weak::upgrade))
+    }
+
     /// Adds a job to those known (unless it is known already: then that entry).
     fn remember(&mut self, entry: Arc<JobEntry>) -> Arc<JobEntry> {
-        if let Some(known) = self.jobs.get(&entry.id) {
-            return Arc::clone(known);
+        if let Some(known) = self.get(&entry.id) {
+            return known;
         }
-        self.fair.track(&entry.record.borrow());
-        if let Some(idempotency) = &entry.record.borrow().idempotency {
-            self.idempotency.insert(
-                (entry.owner.clone(), idempotency.key.clone()),
-                entry.id.clone(),
-            );
-        }
-        self.jobs.insert(entry.id.clone(), Arc::clone(&entry));
+        self.file(&entry);
         entry
     }
 
-    /// Drops a deleted job from those known.
+    /// Files a known job by its status: a queued or running one is kept, an ended one only
+    /// referred to for as long as something holds it.
+    fn file(&mut self, entry: &Arc<JobEntry>) {
+        let ended = {
+            let record = entry.record.borrow();
+            self.fair.track(&record);
+            record.status.is_terminal()
+        };
+        if ended {
+            self.live.remove(&entry.id);
+            self.hold(entry);
+        } else {
+            self.held.remove(&entry.id);
+            self.live.insert(entry.id.clone(), Arc::clone(entry));
+        }
+    }
+
+    fn hold(&mut self, entry: &Arc<JobEntry>) {
+        if self.held.len() >= self.prune_at {
+            self.held.retain(|_, held| held.strong_count() > 0);
+            self.prune_at = (2 * self.held.len()).max(HELD_PRUNE_MIN);
+        }
+        self.held.insert(entry.id.clone(), Arc::downgrade(entry));
+    }
+
+    /// Drops a deleted (or expired) job from those known; whoever still holds its entry sees
+    /// it marked deleted.
     fn forget(&mut self, id: &str) {
         self.fair.forget(id);
-        let Some(entry) = self.jobs.remove(id) else {
-            return;
-        };
-        entry.deleted.store(true, Ordering::SeqCst);
-        if let Some(idempotency) = &entry.record.borrow().idempotency {
-            self.idempotency
-                .remove(&(entry.owner.clone(), idempotency.key.clone()));
+        let entry = self.live.remove(id).or_else(|| {
+            let held = self.held.remove(id)?;
+            held.upgrade()
+        });
+        if let Some(entry) = entry {
+            entry.deleted.store(true, Ordering::SeqCst);
         }
     }
 }
@@ -179,8 +231,8 @@ pub enum QueueError {
 }
 
 impl Queue {
-    /// Loads every stored job, re-queues those that were queued or running when the server
-    /// stopped, and starts the runners. Call from inside the tokio runtime.
+    /// Loads the queued and running jobs, queued again (a run cut short by the stop starts
+    /// over), and starts the runners. Call from inside the tokio runtime.
     pub fn start(
         config: QueueConfig,
         limits: InputLimits,
@@ -195,22 +247,21 @@ impl Queue {
             config.workers.max(1)
         };
         let mut state = State {
-            jobs: BTreeMap::new(),
+            live: BTreeMap::new(),
+            held: HashMap::new(),
+            prune_at: HELD_PRUNE_MIN,
             fair: FairQueue::default(),
-            idempotency: HashMap::new(),
             running: 0,
             draining: false,
         };
         if !shared {
             let recovered = store.recover()?;
-            metrics.set_quarantined(recovered.quarantined.len());
+            metrics.quarantined(recovered.quarantined.len());
             for mut record in recovered.records {
-                if !record.status.is_terminal() {
-                    info!(job_id = %record.id, "re-queued after restart");
-                    record.requeue();
-                    store.remove_outputs(&record.id)?;
-                    store.save(&record)?;
-                }
+                info!(job_id = %record.id, "re-queued after restart");
+                record.requeue();
+                store.remove_outputs(&record.id)?;
+                store.save(&record)?;
                 state.remember(JobEntry::new(record));
             }
         }
@@ -304,9 +355,8 @@ impl Queue {
         state.fair.set_served(served);
         for change in changes {
             match change {
-                Change::Live(record) => match state.jobs.get(&record.id).cloned() {
+                Change::Live(record) => match state.get(&record.id) {
                     Some(entry) => {
-                        state.fair.track(&record);
                         entry.record.send_if_modified(|current| {
                             let mut record = *record;
                             // Deliveries are made here by this copy: the stored ones may lag.
@@ -318,10 +368,13 @@ impl Queue {
                             *current = record;
                             modified
                         });
+                        state.file(&entry);
                     }
-                    None => {
+                    None if !record.status.is_terminal() => {
                         state.remember(JobEntry::new(*record));
                     }
+                    // Ended, and not held here: read from the database when asked for.
+                    None => {}
                 },
                 Change::Deleted(id) => state.forget(&id),
             }
@@ -392,25 +445,54 @@ impl Queue {
         }
     }
 
-    /// The job from this process's copy, if it is there.
-    pub fn cached(&self, id: &str) -> Option<Arc<JobEntry>> {
-        lock(&self.state).jobs.get(id).cloned()
-    }
-
-    /// The job from the database, on the shared backend, remembered in the copy: for a job
-    /// just admitted by another replica, which the copy has not caught up with. Blocking.
-    pub fn load(&self, id: &str) -> Result<Option<Arc<JobEntry>>, StoreError> {
-        let Some(postgres) = self.shared() else {
-            return Ok(None);
+    /// The job from memory when it is live or held, else from the store (an ended job, or on
+    /// the shared backend one just admitted by another replica, which the copy has not caught
+    /// up with), remembered while it is held. An unreadable record is none (and quarantined on
+    /// the embedded backend). Blocking when the job is not in memory.
+    pub fn find(&self, id: &str) -> Result<Option<Arc<JobEntry>>, StoreError> {
+        if let Some(entry) = lock(&self.state).get(id) {
+            return Ok(Some(entry));
+        }
+        let record = match self.store().get(id) {
+            Ok(record) => record,
+            Err(error @ StoreError::CorruptRecord { .. }) => {
+                if !self.is_shared() {
+                    self.metrics.quarantined(1);
+                }
+                warn!(job_id = %id, "{error}");
+                None
+            }
+            Err(error) => return Err(error),
         };
-        Ok(postgres
-            .get(id)?
-            .map(|record| lock(&self.state).remember(JobEntry::new(record))))
+        Ok(record.map(|record| lock(&self.state).remember(JobEntry::new(record))))
     }
 
-    /// Every job, oldest first (for work resumed after a restart, such as webhook deliveries).
-    pub fn entries(&self) -> Vec<Arc<JobEntry>> {
-        lock(&self.state).jobs.values().cloned().collect()
+    /// Whether job `id` is gone with its record expired (and `owner`'s): `410 Gone`, not `404`.
+    /// Blocking.
+    pub fn expired(&self, id: &str, owner: &Option<String>) -> Result<bool, StoreError> {
+        Ok(self.store().expired_owner(id)?.as_ref() == Some(owner))
+    }
+
+    /// Embedded backend: the jobs whose webhook deliveries are unfinished, oldest first (to
+    /// resume them after a start). Records marked so whose deliveries are all done lose the
+    /// mark.
+    pub fn unfinished_webhooks(&self) -> Result<Vec<Arc<JobEntry>>, StoreError> {
+        let mut entries = Vec::new();
+        for record in self.store().webhooks_pending()? {
+            if record.webhook.as_ref().is_some_and(Webhook::unfinished) {
+                entries.push(lock(&self.state).remember(JobEntry::new(record)));
+            } else {
+                self.store().save(&record)?;
+            }
+        }
+        Ok(entries)
+    }
+
+    /// How many jobs are held in memory: the live ones and the ended ones in use.
+    pub fn in_memory(&self) -> usize {
+        let state = lock(&self.state);
+        let held = state.held.values().filter(|held| held.strong_count() > 0);
+        state.live.len() + held.count()
     }
 
     /// Where a job stands while it is queued.
@@ -455,38 +537,22 @@ impl Queue {
         let mut ids = self.store().list_ids(owner, status, before, limit + 1)?;
         let more = ids.len() > limit;
         ids.truncate(limit);
-        if let Some(postgres) = self.shared() {
-            // Jobs admitted by another replica since the follower last looked.
-            let missing: Vec<_> = {
-                let state = lock(&self.state);
-                ids.iter()
-                    .filter(|id| !state.jobs.contains_key(*id))
-                    .cloned()
-                    .collect()
-            };
-            for id in missing {
-                match postgres.get(&id) {
-                    Ok(Some(record)) => {
-                        lock(&self.state).remember(JobEntry::new(record));
-                    }
-                    Ok(None) => {}
-                    // One unreadable row must not hide the rest of the page (the follower
-                    // leaves it out too; GET of that job is the place to see the problem).
-                    Err(error @ StoreError::CorruptRecord { .. }) => {
-                        warn!(%error, "unreadable job record left out of a listing")
-                    }
+        // From memory when there, else from the store (not remembered: nothing holds them).
+        let mut records = Vec::with_capacity(ids.len());
+        for id in &ids {
+            let known = lock(&self.state).get(id).map(|entry| entry.snapshot());
+            let record = match known {
+                Some(record) => Some(record),
+                None => match self.store().get(id) {
+                    Ok(record) => record,
+                    Err(StoreError::CorruptRecord { .. }) => None,
                     Err(error) => return Err(error),
-                }
-            }
+                },
+            };
+            // The live state wins over a stored status a failed write left behind.
+            records.extend(record.filter(|r| status.is_none_or(|status| r.status == status)));
         }
         let state = lock(&self.state);
-        let records: Vec<JobRecord> = ids
-            .iter()
-            .filter_map(|id| state.jobs.get(id))
-            .map(|entry| entry.snapshot())
-            // The live state wins over a stored status a failed write left behind.
-            .filter(|record| status.is_none_or(|status| record.status == status))
-            .collect();
         // One pass of the rule places every queued job of the page.
         let now = now_ms();
         let positions = match records.iter().any(|r| r.status == Status::Queued) {
@@ -505,32 +571,30 @@ impl Queue {
         Ok((page, more))
     }
 
-    /// The earlier job for this Idempotency-Key, if any: `Ok` when the request matches it.
+    /// The earlier job for this Idempotency-Key (within [`QueueConfig::idempotency_window`]),
+    /// if any: `Ok` when the request matches it. Blocking.
     pub fn find_idempotent(
         &self,
         owner: &Option<String>,
         key: &str,
         fingerprint: &str,
     ) -> Result<Option<Arc<JobEntry>>, ApiError> {
-        let state = lock(&self.state);
-        let Some(entry) = state
-            .idempotency
-            .get(&(owner.clone(), key.to_owned()))
-            .and_then(|id| state.jobs.get(id))
-        else {
+        let Some(earlier) = self.store().idempotent(owner, key, self.keys_since())? else {
             return Ok(None);
         };
-        let same = entry
-            .record
-            .borrow()
+        let same = earlier
             .idempotency
             .as_ref()
             .is_some_and(|i| i.fingerprint == fingerprint);
-        if same {
-            Ok(Some(Arc::clone(entry)))
-        } else {
-            Err(ApiError::IdempotencyMismatch)
+        if !same {
+            return Err(ApiError::IdempotencyMismatch);
         }
+        Ok(Some(lock(&self.state).remember(JobEntry::new(earlier))))
+    }
+
+    /// Creation time (Unix ms) from which Idempotency-Keys still hold.
+    fn keys_since(&self) -> u64 {
+        now_ms().saturating_sub(self.config.idempotency_window.as_millis() as u64)
     }
 
     /// Refuses new work of `client` when draining, when the queue is full, or when the
@@ -607,25 +671,6 @@ impl Queue {
             let _ = self.store().remove_artefacts(&id);
             Err(error)
         };
-        if let Some(idempotency) = &record.idempotency {
-            let key = (record.owner.clone(), idempotency.key.clone());
-            if let Some(earlier) = state
-                .idempotency
-                .get(&key)
-                .and_then(|earlier| state.jobs.get(earlier))
-                .cloned()
-            {
-                let same = earlier.record.borrow().idempotency.as_ref() == Some(idempotency);
-                let result = if same {
-                    Ok(Admission::Replayed(earlier))
-                } else {
-                    Err(ApiError::IdempotencyMismatch)
-                };
-                drop(state);
-                let _ = self.store().remove_artefacts(&id);
-                return result;
-            }
-        }
         if let Some(postgres) = self.shared() {
             if state.draining {
                 return refuse(state, ApiError::ShuttingDown);
@@ -636,6 +681,28 @@ impl Queue {
                 let _ = self.store().remove_artefacts(&id);
             }
             return admitted;
+        }
+        // Looked up under the queue lock, so of two submissions with one key only the first
+        // is admitted.
+        if let Some(idempotency) = &record.idempotency {
+            let earlier =
+                match self
+                    .store()
+                    .idempotent(&record.owner, &idempotency.key, self.keys_since())
+                {
+                    Ok(earlier) => earlier,
+                    Err(error) => return refuse(state, error.into()),
+                };
+            if let Some(earlier) = earlier {
+                let result = if earlier.idempotency.as_ref() == Some(idempotency) {
+                    Ok(Admission::Replayed(state.remember(JobEntry::new(earlier))))
+                } else {
+                    Err(ApiError::IdempotencyMismatch)
+                };
+                drop(state);
+                let _ = self.store().remove_artefacts(&id);
+                return result;
+            }
         }
         if let Some(error) = self.capacity_error(&state, &record.client) {
             return refuse(state, error);
@@ -653,7 +720,12 @@ impl Queue {
     /// submissions with one Idempotency-Key is first).
     fn admit_shared(&self, postgres: &Postgres, record: JobRecord) -> Result<Admission, ApiError> {
         let key_limit = self.config.scheduling.limits_of(&record.client).queued;
-        match postgres.insert(&record, self.config.max_queued, key_limit)? {
+        match postgres.insert(
+            &record,
+            self.config.max_queued,
+            key_limit,
+            self.keys_since(),
+        )? {
             Inserted::Created => {
                 let entry = lock(&self.state).remember(JobEntry::new(record));
                 Ok(Admission::Created(entry))
@@ -673,7 +745,7 @@ impl Queue {
 
     /// Cancels a job: a queued one ends at once, a running one within one iteration.
     /// Returns whether the job was running (the cancel is then still in progress).
-    pub fn cancel(&self, entry: &JobEntry) -> Result<bool, ApiError> {
+    pub fn cancel(&self, entry: &Arc<JobEntry>) -> Result<bool, ApiError> {
         if let Some(postgres) = self.shared() {
             return self.cancel_shared(postgres, entry);
         }
@@ -695,13 +767,14 @@ impl Queue {
             Some(CancelReason::User),
             self.config.retention,
         );
-        self.save(entry)?;
-        Ok(false)
+        let saved = self.save(entry);
+        lock(&self.state).file(entry);
+        saved.map(|()| false)
     }
 
     /// [`Queue::cancel`] in the database: a queued job (whatever the copy says) ends there;
     /// a running one's worker stops it at its next heartbeat.
-    fn cancel_shared(&self, postgres: &Postgres, entry: &JobEntry) -> Result<bool, ApiError> {
+    fn cancel_shared(&self, postgres: &Postgres, entry: &Arc<JobEntry>) -> Result<bool, ApiError> {
         let mut ended = entry.snapshot();
         ended.end(
             Status::Canceled,
@@ -721,8 +794,8 @@ impl Queue {
             Canceled::Stopping | Canceled::Nothing => postgres.get(&entry.id)?,
         };
         if let Some(current) = current {
-            lock(&self.state).fair.track(&current);
             entry.record.send_replace(current);
+            lock(&self.state).file(entry);
         }
         Ok(matches!(outcome, Canceled::Stopping))
     }
@@ -759,41 +832,82 @@ impl Queue {
     pub fn sweep_orphans(&self, min_age: Duration) -> usize {
         let removed = self
             .store()
-            .sweep_orphans(min_age, |id| lock(&self.state).jobs.contains_key(id));
+            .sweep_orphans(min_age, |id| lock(&self.state).get(id).is_some());
         self.metrics.orphans_swept(removed);
         removed
     }
 
-    /// Removes the results of jobs whose retention has passed; returns how many.
+    /// Removes the results of jobs whose retention has passed (returns how many), the records
+    /// of jobs whose record retention has, and expired Idempotency-Keys. Blocking.
     pub fn expire(&self, now: u64) -> usize {
-        let expired: Vec<_> = lock(&self.state)
-            .jobs
-            .values()
-            .filter(|entry| {
-                let record = entry.record.borrow();
-                !record.data_removed && record.expires_at.is_some_and(|expires| expires <= now)
-            })
-            .cloned()
-            .collect();
-        for entry in &expired {
-            let _span = info_span!("expire", job_id = %entry.id).entered();
-            if let Err(error) = self.store().remove_artefacts(&entry.id) {
-                warn!("removing expired results: {error}");
-                continue;
+        let mut removed = 0;
+        loop {
+            let due = match self.store().results_due(now, EXPIRY_BATCH) {
+                Ok(due) => due,
+                Err(error) => {
+                    warn!("looking for expired results: {error}");
+                    break;
+                }
+            };
+            let mut failed = false;
+            for id in &due {
+                let _span = info_span!("expire", job_id = %id).entered();
+                let removal = self.find(id).map_err(ApiError::from).and_then(|entry| {
+                    let Some(entry) = entry else { return Ok(()) };
+                    self.store().remove_artefacts(id)?;
+                    entry
+                        .record
+                        .send_modify(|record| record.data_removed = true);
+                    self.save(&entry)
+                });
+                match removal {
+                    Ok(()) => removed += 1,
+                    Err(error) => {
+                        warn!("removing expired results: {error}");
+                        failed = true;
+                    }
+                }
             }
-            entry
-                .record
-                .send_modify(|record| record.data_removed = true);
-            if let Err(error) = self.store().save(&entry.snapshot()) {
-                warn!("saving expired job: {error}");
+            // A failed one would come back in the next batch: left to the next sweep.
+            if due.len() < EXPIRY_BATCH || failed {
+                break;
             }
+        }
+        self.expire_records(now);
+        if let Err(error) = self.store().drop_idempotency_keys(self.keys_since()) {
+            warn!("removing expired idempotency keys: {error}");
         }
         if let Some(postgres) = self.shared()
             && let Err(error) = postgres.purge_tombstones(TOMBSTONE_AGE)
         {
             warn!("purging deleted jobs: {error}");
         }
-        expired.len()
+        removed
+    }
+
+    /// Deletes the records of jobs that ended more than the record retention ago (their files
+    /// too, if any are left), and forgets the expired ids kept as long again.
+    fn expire_records(&self, now: u64) {
+        let cutoff = now.saturating_sub(self.config.record_retention.as_millis() as u64);
+        loop {
+            let expired = match self.store().expire_records(cutoff, cutoff, EXPIRY_BATCH) {
+                Ok(expired) => expired,
+                Err(error) => {
+                    warn!("deleting expired job records: {error}");
+                    return;
+                }
+            };
+            for id in &expired {
+                lock(&self.state).forget(id);
+                self.remove_deleted_files(id);
+            }
+            if !expired.is_empty() {
+                info!(records = expired.len(), "expired job records deleted");
+            }
+            if expired.len() < EXPIRY_BATCH {
+                return;
+            }
+        }
     }
 
     /// Stops taking jobs, lets running ones finish for up to `grace`, then stops them; they are
@@ -815,7 +929,7 @@ impl Queue {
                 running = state.running,
                 "shutdown grace over: stopping running jobs"
             );
-            for entry in state.jobs.values() {
+            for entry in state.live.values() {
                 if entry.record.borrow().status == Status::Running {
                     entry.request_cancel(CancelReason::Shutdown);
                 }
@@ -848,7 +962,7 @@ impl Queue {
             let Some(id) = id else {
                 break;
             };
-            let Some(entry) = state.jobs.get(&id).cloned() else {
+            let Some(entry) = state.live.get(&id).cloned() else {
                 state.fair.forget(&id);
                 continue;
             };
@@ -872,7 +986,7 @@ impl Queue {
                 let deleted = entry.deleted.load(Ordering::SeqCst);
                 if !deleted {
                     // Ended, or queued again by a shutdown.
-                    state.fair.track(&entry.record.borrow());
+                    state.file(&entry);
                 }
                 deleted
             };
@@ -909,9 +1023,8 @@ impl Queue {
     /// job's record for its results, in its folder's digests for an edit's files (a file cut
     /// short or altered on disk is an error, never served as if whole).
     pub fn read_result(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>, ApiError> {
-        let recorded = lock(&self.state)
-            .jobs
-            .get(id)
+        let recorded = self
+            .find(id)?
             .and_then(|entry| entry.record.borrow().checksums.get(name).cloned());
         let expected = match recorded {
             Some(digest) => Some(digest),

@@ -103,8 +103,8 @@ pub struct Webhooks {
 }
 
 impl Webhooks {
-    /// Checks the configuration and resumes the deliveries of every stored job (call inside the
-    /// runtime, after the queue has loaded the jobs).
+    /// Checks the configuration and, on the shared backend, starts taking over the deliveries
+    /// of replicas that stopped (call inside the runtime).
     pub fn start(
         config: WebhookConfig,
         queue: Arc<Queue>,
@@ -132,32 +132,20 @@ impl Webhooks {
         });
         // On the shared backend deliveries are made by the replica that admitted the job, and
         // taken over by another when that one stops (README, "Scaling out").
-        let resumable = if webhooks.queue.is_shared() {
+        if webhooks.queue.is_shared() {
             tokio::spawn(Arc::clone(&webhooks).take_over());
-            Vec::new()
-        } else {
-            webhooks.queue.entries()
-        };
-        for entry in resumable {
-            let unfinished = entry
-                .record
-                .borrow()
-                .webhook
-                .as_ref()
-                .is_some_and(|webhook| {
-                    webhook.events.iter().any(|event| {
-                        webhook
-                            .deliveries
-                            .iter()
-                            .find(|delivery| delivery.event == *event)
-                            .is_none_or(|delivery| delivery.status == DeliveryStatus::Pending)
-                    })
-                });
-            if unfinished {
-                webhooks.follow(entry);
-            }
         }
         Ok(webhooks)
+    }
+
+    /// Embedded backend: resumes the unfinished deliveries of stored jobs (after a start).
+    pub fn resume(self: &Arc<Self>) -> Result<(), StoreError> {
+        if !self.queue.is_shared() {
+            for entry in self.queue.unfinished_webhooks()? {
+                self.follow(entry);
+            }
+        }
+        Ok(())
     }
 
     /// The webhook a submission asks for, if any, once its URL and events are checked: 422
@@ -265,10 +253,7 @@ impl Webhooks {
                     .expect("started on the shared backend");
                 let mut entries = Vec::new();
                 for id in postgres.renew_deliveries()? {
-                    match queue
-                        .cached(&id)
-                        .map_or_else(|| queue.load(&id), |e| Ok(Some(e)))?
-                    {
+                    match queue.find(&id)? {
                         Some(entry) => entries.push(entry),
                         None => postgres.deliveries_done(&id)?,
                     }
@@ -343,10 +328,10 @@ impl Webhooks {
         }
     }
 
-    /// Whether the job is still there: this replica admitted it, so its copy has it until it
-    /// is deleted anywhere.
+    /// Whether the job is still there: deleting it (anywhere: the copy follows other
+    /// replicas' deletes) or its record expiring marks the entry this task holds.
     fn exists(&self, entry: &JobEntry) -> bool {
-        self.queue.cached(&entry.id).is_some()
+        !entry.deleted.load(std::sync::atomic::Ordering::SeqCst)
     }
 
     /// Attempts one event's delivery until it is delivered or out of attempts.

@@ -33,13 +33,17 @@ use crate::service::fair::Scheduling;
 use crate::service::model::{JobRecord, Status};
 
 /// The schema, version by version; a version once released is never edited.
-const MIGRATIONS: [(i32, &str); 3] = [
+const MIGRATIONS: [(i32, &str); 4] = [
     (1, include_str!("../../../migrations/0001_jobs.sql")),
     (
         2,
         include_str!("../../../migrations/0002_webhook_deliveries.sql"),
     ),
     (3, include_str!("../../../migrations/0003_fair_queue.sql")),
+    (
+        4,
+        include_str!("../../../migrations/0004_bounded_records.sql"),
+    ),
 ];
 
 /// Advisory lock ids: migrations, claims (one at a time, so each sees the running counts the
@@ -70,6 +74,9 @@ const RECORD_COLUMNS: &str = "id, record::text, status, cancel_requested, attemp
 /// Every full write of a record keeps the webhook deliveries stored: the API replica that
 /// delivers them writes only that field ([`Postgres::save_webhook`]).
 const KEEP_WEBHOOK: &str = "|| jsonb_build_object('webhook', jobs.record -> 'webhook')";
+
+/// Takes an expired Idempotency-Key off a job, column and record.
+const DROP_KEY: &str = "idempotency_key = NULL, record = record - 'idempotency'";
 
 pub struct Postgres {
     pool: Pool,
@@ -234,11 +241,14 @@ impl Postgres {
     /// queued jobs, or a live job has its Idempotency-Key (then that job's record). The
     /// client's count and the insert hold its advisory lock, so replicas admitting its jobs
     /// at once cannot pass the limit together.
+    /// A key used before `keys_since` (Unix ms) has expired: the job that held it keeps its
+    /// record but not the key.
     pub fn insert(
         &self,
         record: &JobRecord,
         max_queued: usize,
         key_limit: Option<usize>,
+        keys_since: u64,
     ) -> Result<Inserted, StoreError> {
         let json = to_json(record);
         let (id, owner) = (record.id.clone(), record.owner.clone());
@@ -246,9 +256,10 @@ impl Postgres {
         let key = record.idempotency.as_ref().map(|i| i.key.clone());
         let (replica, lease) = (self.replica.clone(), DELIVERY_LEASE.as_secs_f64());
         let webhook = record.webhook.is_some();
+        let keys_since = keys_since as i64;
         self.run(move |mut client| async move {
             // The earlier job, looked for first: a replay is answered even when the queue is full.
-            if let Some(existing) = by_key(&client, &owner, &key).await? {
+            if let Some(existing) = by_key(&client, &owner, &key, keys_since).await? {
                 return Ok(Inserted::Existing(Box::new(existing)));
             }
             let transaction = client.transaction().await?;
@@ -271,6 +282,19 @@ impl Postgres {
             }
             if key_limit.is_some_and(|limit| mine >= limit) {
                 return Ok(Inserted::KeyFull(mine));
+            }
+            if let Some(key) = &key {
+                // An expired holder of the key frees it for this job (the unique index).
+                transaction
+                    .execute(
+                        &format!(
+                            "UPDATE jobs SET {DROP_KEY}
+                             WHERE coalesce(owner, '') = $1 AND idempotency_key = $2
+                                 AND (record ->> 'created_at')::bigint < $3"
+                        ),
+                        &[&owner.clone().unwrap_or_default(), key, &keys_since],
+                    )
+                    .await?;
             }
             // With its webhook deliveries claimed by this replica in the same statement, so
             // no job with a webhook is ever without a deliverer.
@@ -305,7 +329,7 @@ impl Postgres {
                 return Ok(Inserted::Created);
             }
             // Another replica inserted the same key meanwhile.
-            match by_key(&client, &owner, &key).await? {
+            match by_key(&client, &owner, &key, keys_since).await? {
                 Some(existing) => Ok(Inserted::Existing(Box::new(existing))),
                 None => Err(StoreError::CorruptRecord {
                     id,
@@ -329,7 +353,7 @@ impl Postgres {
         })
     }
 
-    /// Every job changed after `since` (all live jobs when `None`), and the mark to pass next
+    /// Every job changed after `since` (the queued and running jobs when `None`), and the mark to pass next
     /// time. The mark trails the database clock by a margin, so a change committed just after
     /// a statement that began earlier is still seen; a change may come twice.
     pub fn changes(
@@ -357,7 +381,8 @@ impl Postgres {
                     client
                         .query(
                             &format!(
-                                "SELECT {RECORD_COLUMNS}, deleted FROM jobs WHERE NOT deleted
+                                "SELECT {RECORD_COLUMNS}, deleted FROM jobs
+                                 WHERE status IN ('queued', 'running') AND NOT deleted
                                  ORDER BY id"
                             ),
                             &[],
@@ -446,6 +471,96 @@ impl Postgres {
                 }
             };
             Ok(rows.iter().map(|row| row.get(0)).collect())
+        })
+    }
+
+    /// See [`super::Store::idempotent`].
+    pub fn idempotent(
+        &self,
+        owner: &Option<String>,
+        key: &str,
+        created_since: u64,
+    ) -> Result<Option<JobRecord>, StoreError> {
+        let (owner, key) = (owner.clone(), Some(key.to_owned()));
+        self.run(
+            move |client| async move { by_key(&client, &owner, &key, created_since as i64).await },
+        )
+    }
+
+    /// See [`super::Store::drop_idempotency_keys`].
+    pub fn drop_idempotency_keys(&self, created_before: u64) -> Result<usize, StoreError> {
+        self.run(move |client| async move {
+            let dropped = client
+                .execute(
+                    &format!(
+                        "UPDATE jobs SET {DROP_KEY} WHERE idempotency_key IS NOT NULL
+                             AND (record ->> 'created_at')::bigint < $1"
+                    ),
+                    &[&(created_before as i64)],
+                )
+                .await?;
+            Ok(dropped as usize)
+        })
+    }
+
+    /// See [`super::Store::results_due`].
+    pub fn results_due(&self, now: u64, limit: usize) -> Result<Vec<String>, StoreError> {
+        self.run(move |client| async move {
+            let rows = client
+                .query(
+                    "SELECT id FROM jobs WHERE record ->> 'data_removed' = 'false' AND NOT deleted
+                         AND (record ->> 'expires_at')::bigint <= $1
+                     LIMIT $2",
+                    &[&(now as i64), &(limit as i64)],
+                )
+                .await?;
+            Ok(rows.iter().map(|row| row.get(0)).collect())
+        })
+    }
+
+    /// See [`super::Store::expire_records`]. Replicas expiring at once each take other rows.
+    pub fn expire_records(
+        &self,
+        ended_before: u64,
+        expired_before: u64,
+        limit: usize,
+    ) -> Result<Vec<String>, StoreError> {
+        self.run(move |client| async move {
+            let rows = client
+                .query(
+                    "WITH gone AS (
+                         DELETE FROM jobs WHERE id IN (
+                             SELECT id FROM jobs
+                             WHERE status IN ('succeeded', 'failed', 'canceled') AND NOT deleted
+                                 AND (record ->> 'completed_at')::bigint < $1
+                             LIMIT $2 FOR UPDATE SKIP LOCKED)
+                         RETURNING id, owner),
+                     kept AS (
+                         INSERT INTO expired_jobs (id, owner, expired_at)
+                         SELECT id, owner, (extract(epoch FROM clock_timestamp()) * 1000)::bigint
+                         FROM gone ON CONFLICT (id) DO NOTHING)
+                     SELECT id FROM gone",
+                    &[&(ended_before as i64), &(limit as i64)],
+                )
+                .await?;
+            client
+                .execute(
+                    "DELETE FROM expired_jobs WHERE expired_at < $1",
+                    &[&(expired_before as i64)],
+                )
+                .await?;
+            Ok(rows.iter().map(|row| row.get(0)).collect())
+        })
+    }
+
+    /// See [`super::Store::expired_owner`].
+    pub fn expired_owner(&self, id: &str) -> Result<Option<Option<String>>, StoreError> {
+        let id = id.to_owned();
+        self.run(move |client| async move {
+            let row = client
+                .query_opt("SELECT owner FROM expired_jobs WHERE id = $1", &[&id])
+                .await?;
+            Ok(row.map(|row| row.get(0)))
         })
     }
 
@@ -783,11 +898,13 @@ impl Postgres {
     }
 }
 
-/// The live job holding `owner`'s Idempotency-Key `key`, if any.
+/// The live job holding `owner`'s Idempotency-Key `key`, if any, created at or after
+/// `keys_since` (Unix ms; an older key has expired).
 async fn by_key(
     client: &deadpool_postgres::Object,
     owner: &Option<String>,
     key: &Option<String>,
+    keys_since: i64,
 ) -> Result<Option<JobRecord>, StoreError> {
     let Some(key) = key else {
         return Ok(None);
@@ -797,9 +914,10 @@ async fn by_key(
         .query_opt(
             &format!(
                 "SELECT {RECORD_COLUMNS} FROM jobs
-                 WHERE coalesce(owner, '') = $1 AND idempotency_key = $2 AND NOT deleted"
+                 WHERE coalesce(owner, '') = $1 AND idempotency_key = $2 AND NOT deleted
+                     AND (record ->> 'created_at')::bigint >= $3"
             ),
-            &[&owner, key],
+            &[&owner, key, &keys_since],
         )
         .await?;
     row.as_ref().map(record_of).transpose()
