@@ -69,11 +69,13 @@ fn view(state: &AppState, entry: &JobEntry) -> JobView {
 }
 
 /// The query of `POST /v1/jobs`.
-#[derive(Deserialize)]
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 #[serde(deny_unknown_fields)]
 struct CreateQuery {
     /// Use JPEGs cut short (the missing part decodes as grey) instead of refusing them.
     #[serde(default)]
+    #[param(default = false)]
     accept_truncated: bool,
 }
 
@@ -92,7 +94,7 @@ const PREFER: &str = "prefer";
         end-of-image marker (cut short in transfer) is refused with 422 `truncated-image` \
         unless `accept_truncated=true` (its missing part then decodes as grey).",
     params(
-        ("accept_truncated" = Option<bool>, Query, description = "Use JPEGs cut short instead of refusing them."),
+        CreateQuery,
         ("Idempotency-Key" = Option<String>, Header, min_length = 1, max_length = 255),
         ("Prefer" = Option<String>, Header, example = "wait=30",
             description = "`wait=N`: seconds to wait for the job to end before answering."),

@@ -139,20 +139,20 @@ pub(super) async fn artefact(
 }
 
 /// The query of `GET /v1/jobs/{id}/svg`.
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 struct SvgQuery {
-    /// `true`: the flattened SVG (opaque paths, no blend modes) instead of the layered one.
+    /// `true`: the same picture as plain opaque paths in painter's order (no blend modes,
+    /// opacities, filters or images), for programs without `multiply` or `plus-lighter`; made
+    /// on request from the stored scene. Anything but `true`/`false`: 400 `bad-query`.
     #[serde(default)]
+    #[param(default = false)]
     flatten: bool,
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/svg", tag = "results", operation_id = "getSvg",
     summary = "The layered SVG, or with `flatten=true` the flattened one",
-    params(("id" = JobId, Path), ("flatten" = Option<bool>, Query,
-        description = "`true`: the same picture as plain opaque paths in painter's order (no \
-            blend modes, opacities, filters or images), for programs without `multiply` or \
-            `plus-lighter`; made on request from the stored scene. Anything but `true`/`false`: \
-            400 `bad-query`.")),
+    params(("id" = JobId, Path), SvgQuery),
     responses(
         (status = 200, description = "The SVG (layered - albedo, shade with \
             `mix-blend-mode:multiply`, light with `plus-lighter` - or flattened).",
