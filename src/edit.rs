@@ -10,9 +10,11 @@ use crate::scene::{LayerKind, Path, PathId, Point, Scene};
 
 /// Thresholds of the reference edit (paper Appendix D). Colours are in [0, 1].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "service", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct ReferenceParams {
     /// Number of paths to recolour at most (the paper's K). Default 4.
+    #[cfg_attr(feature = "service", schema(minimum = 1))]
     pub k: usize,
     /// A pixel is edited when its mean absolute channel difference exceeds τ. Default 0.05.
     pub tau: f32,

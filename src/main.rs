@@ -26,6 +26,7 @@ enum Command {
     Serve(cli::serve::ServeArgs),
     /// Run queued jobs from the shared PostgreSQL backend (`--database-url`), with no HTTP API.
     Worker(cli::serve::WorkerArgs),
+    Openapi(cli::openapi::Args),
 }
 
 fn main() -> ExitCode {
@@ -37,6 +38,7 @@ fn main() -> ExitCode {
         Command::Eval(args) => cli::eval::run(&args).map_err(|e| e.to_string()),
         Command::Serve(args) => return cli::serve::run(args),
         Command::Worker(args) => return cli::serve::work(args),
+        Command::Openapi(args) => cli::openapi::run(&args),
     };
     if let Err(error) = result {
         eprintln!("error: {error}");

@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 /// A point in canvas pixels.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "service", derive(utoipa::ToSchema))]
 pub struct Point {
     /// Rightwards from the canvas's left edge.
     pub x: f32,

@@ -1,10 +1,8 @@
 //! The service's HTTP contract without running the pipeline to the end: bad requests, auth and
-//! visibility, listing, operations endpoints, and the OpenAPI document against the router.
+//! visibility, listing, operations endpoints.
 #![cfg(all(feature = "cli", feature = "service"))]
 
 mod service_support;
-
-use std::collections::BTreeSet;
 
 use hyper::{Method, StatusCode};
 use serde_json::json;
@@ -344,59 +342,6 @@ async fn listing_pages_through_jobs_newest_first() {
         .collect();
     ids.reverse();
     assert_eq!(listed, ids);
-}
-
-/// Every (method, path) the router serves is in api/openapi.yaml, and every operation there is
-/// served. Paths are compared in the OpenAPI form (`{id}`), which the router uses too.
-#[test]
-fn openapi_document_matches_the_router() {
-    let document =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/api/openapi.yaml")).unwrap();
-    assert!(
-        document.starts_with("openapi: 3.1"),
-        "an OpenAPI 3.1 document"
-    );
-    let mut documented = BTreeSet::new();
-    let mut in_paths = false;
-    let mut current_path = None;
-    for line in document.lines() {
-        if !line.starts_with(' ') && !line.is_empty() {
-            in_paths = line == "paths:";
-            continue;
-        }
-        if !in_paths {
-            continue;
-        }
-        if let Some(path) = line
-            .strip_prefix("  /")
-            .and_then(|rest| rest.strip_suffix(':'))
-        {
-            current_path = Some(format!("/{path}"));
-        } else if let Some(method) = line
-            .strip_prefix("    ")
-            .and_then(|rest| rest.strip_suffix(':'))
-            && ["get", "post", "put", "patch", "delete"].contains(&method)
-        {
-            documented.insert((
-                method.to_uppercase(),
-                current_path.clone().expect("a method under a path"),
-            ));
-        }
-    }
-    let served: BTreeSet<_> = covec::service::endpoints()
-        .iter()
-        .map(|endpoint| (endpoint.method.to_string(), endpoint.path.to_owned()))
-        .collect();
-    assert_eq!(
-        served.difference(&documented).collect::<Vec<_>>(),
-        Vec::<&(String, String)>::new(),
-        "undocumented"
-    );
-    assert_eq!(
-        documented.difference(&served).collect::<Vec<_>>(),
-        Vec::<&(String, String)>::new(),
-        "not served"
-    );
 }
 
 #[tokio::test]

@@ -5,6 +5,7 @@ pub mod edit;
 pub mod eval;
 pub mod intrinsic;
 pub mod io;
+pub mod openapi;
 pub mod render;
 pub mod serve;
 pub mod vectorize;

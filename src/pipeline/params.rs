@@ -13,6 +13,7 @@ use crate::scene::Scene;
 /// Which variant of the method to run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[cfg_attr(feature = "service", derive(utoipa::ToSchema))]
 #[serde(rename_all = "lowercase")]
 pub enum Mode {
     /// Pick `simple` or `photo` from the image itself.
@@ -54,13 +55,16 @@ impl From<ResolvedMode> for Mode {
 
 /// Everything a run can be told. Defaults are the paper's unless noted.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "service", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct Params {
     /// Total path budget over all layers, base path included. Default 64; range 8-1024.
+    #[cfg_attr(feature = "service", schema(minimum = 8, maximum = 1024))]
     pub paths: u32,
     /// Default `auto`.
     pub mode: Mode,
     /// Working size: the long side is scaled down to this (never up). Default 512; range 16-4096.
+    #[cfg_attr(feature = "service", schema(minimum = 16, maximum = 4096))]
     pub max_size: u32,
     /// Seed for every random choice. Default 0.
     pub seed: u64,
@@ -82,6 +86,7 @@ impl Default for Params {
 
 /// Iterations per stage (paper Sec. 4.3-4.4 and Appendix C).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "service", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct Iterations {
     /// Structure-loss iterations. Default 50.

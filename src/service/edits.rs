@@ -12,10 +12,16 @@ use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
 use serde::{Deserialize, Serialize};
 
+use utoipa::ToSchema;
+use utoipa::openapi::schema::AdditionalProperties;
+use utoipa::openapi::schema::RefBuilder;
+use utoipa::openapi::{ObjectBuilder, Ref, RefOr, Schema, Type};
+
 use super::auth::Owner;
-use super::error::ApiError;
+use super::error::{ApiError, Problem, Unavailable};
 use super::jobs::find;
-use super::results::{artefact, require_success, scene_file, stored_scene};
+use super::model::JobId;
+use super::results::{Binary, SceneJson, artefact, require_success, scene_file, stored_scene};
 use super::store::digest;
 use super::submit::{input_error, read_body};
 use super::{AppState, Endpoint, endpoint};
@@ -48,6 +54,34 @@ fn new_edit_id() -> String {
     format!("edit_{}", uuid::Uuid::now_v7().simple())
 }
 
+/// The edit id's schema in the API document: what [`check_edit_id`] accepts.
+struct EditId;
+
+impl utoipa::PartialSchema for EditId {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .pattern(Some("^edit_[0-9a-f]{32}$"))
+            .into()
+    }
+}
+
+impl ToSchema for EditId {}
+
+/// A colour in the API document: `#rrggbb`, as [`svg::parse_hex_colour`] reads it.
+struct Colour;
+
+impl utoipa::PartialSchema for Colour {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .pattern(Some("^#[0-9a-fA-F]{6}$"))
+            .into()
+    }
+}
+
+impl ToSchema for Colour {}
+
 fn check_edit_id(id: &str) -> Result<(), ApiError> {
     let valid = id.strip_prefix("edit_").is_some_and(|hex| {
         hex.len() == 32
@@ -65,16 +99,20 @@ fn check_edit_id(id: &str) -> Result<(), ApiError> {
 }
 
 /// JSON form: direct colour changes.
-#[derive(Deserialize)]
+#[derive(Deserialize, ToSchema)]
+#[schema(as = ColorEditRequest)]
 #[serde(deny_unknown_fields)]
 struct ColorEdit {
-    /// Apply on top of this earlier edit instead of the job's scene.
+    /// Apply on top of this edit (null or absent for the job's own scene).
     #[serde(default)]
+    #[schema(value_type = Option<EditId>)]
     base: Option<String>,
+    #[schema(min_items = 1)]
     changes: Vec<ChangeRequest>,
 }
 
-#[derive(Deserialize)]
+/// Exactly one of `path` and `at` (a `null` one counts as absent).
+#[derive(Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 struct ChangeRequest {
     /// A path id such as `albedo-3`; or give `at`.
@@ -83,41 +121,47 @@ struct ChangeRequest {
     /// A point in viewBox coordinates: the albedo path under it is recoloured.
     #[serde(default)]
     at: Option<Point>,
-    /// `#rrggbb`.
+    #[schema(value_type = Colour)]
     color: String,
     #[serde(default)]
+    #[schema(minimum = 0, maximum = 1)]
     opacity: Option<f32>,
 }
 
 /// What a stored edit says about itself.
-#[derive(Serialize, Deserialize)]
+#[derive(Serialize, Deserialize, ToSchema)]
+#[schema(as = Edit)]
 struct EditRecord {
     id: String,
     job_id: String,
+    #[schema(required)]
     base: Option<String>,
     kind: EditKind,
     changed: Vec<ChangedView>,
+    #[schema(format = DateTime)]
     created_at: String,
     urls: EditUrls,
 }
 
-#[derive(Serialize, Deserialize, Clone, Copy)]
+#[derive(Serialize, Deserialize, Clone, Copy, ToSchema)]
 #[serde(rename_all = "lowercase")]
 enum EditKind {
     Colors,
     Reference,
 }
 
-#[derive(Serialize, Deserialize)]
+#[derive(Serialize, Deserialize, ToSchema)]
 struct ChangedView {
     path: String,
+    #[schema(value_type = Colour)]
     old_color: String,
+    #[schema(value_type = Colour)]
     new_color: String,
     old_opacity: f32,
     new_opacity: f32,
 }
 
-#[derive(Serialize, Deserialize)]
+#[derive(Serialize, Deserialize, ToSchema)]
 struct EditUrls {
     #[serde(rename = "self")]
     this: String,
@@ -125,6 +169,43 @@ struct EditUrls {
     scene: String,
     preview: String,
 }
+
+/// The multipart form of an edit in the API document (read by [`read_reference_edit`]).
+struct ReferenceEditRequest;
+
+impl utoipa::PartialSchema for ReferenceEditRequest {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .property(
+                "reference",
+                ObjectBuilder::new()
+                    .schema_type(Type::String)
+                    .content_encoding("binary")
+                    .description(Some("The edited image, same size as the job's image.")),
+            )
+            .property(
+                "k",
+                ObjectBuilder::new()
+                    .schema_type(Type::Integer)
+                    .minimum(Some(1))
+                    .description(Some("Overrides `params.k`.")),
+            )
+            .property(
+                "params",
+                RefBuilder::new()
+                    .ref_location_from_schema_name(ReferenceParams::name())
+                    .description(Some(
+                        "A JSON part: the thresholds of Appendix D, each optional.",
+                    )),
+            )
+            .property("base", Ref::from_schema_name(EditId::name()))
+            .required("reference")
+            .additional_properties(Some(AdditionalProperties::FreeForm(false)))
+            .into()
+    }
+}
+
+impl ToSchema for ReferenceEditRequest {}
 
 /// The request as read, before the scene is loaded.
 enum EditRequest {
@@ -135,6 +216,36 @@ enum EditRequest {
     },
 }
 
+#[utoipa::path(post, path = "/v1/jobs/{id}/edits", tag = "edits", operation_id = "createEdit",
+    summary = "Recolour albedo paths of a succeeded job, keeping shade and light (runs within the request)",
+    description = "JSON: direct colour changes, by path id or by the albedo path under a point \
+        (viewBox coordinates). Multipart: recolour by an edited reference image of the job's \
+        image size (paper Appendix D): the top `k` albedo paths by area that overlap the edited \
+        region and change colour get the reference colour divided by the mean shade under them. \
+        `base` applies the edit on top of an earlier edit of the same job. A JSON body is at most \
+        1 MiB (413 `body-too-large`) with at most 4096 changes (413 `too-many-changes`); a \
+        reference image over `--max-pixels` is 413 `too-many-pixels`, one cut short 422 \
+        `truncated-image`; a reference edit waits for a decode slot as a submission does (503 \
+        `decode-busy`).",
+    params(("id" = JobId, Path)),
+    request_body(content(
+        (ColorEdit = "application/json", example = json!({"changes": [{"at": {"x": 8, "y": 8}, "color": "#2060c0"}]})),
+        (ReferenceEditRequest = "multipart/form-data"),
+    )),
+    responses(
+        (status = 201, description = "The edit.", body = EditRecord,
+            headers(("Location" = String, description = "The edit's URL."))),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+        (status = 413, response = Problem),
+        (status = 415, response = Problem),
+        (status = 422, response = Problem),
+        (status = 503, response = Unavailable),
+    ),
+)]
 async fn create(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -443,6 +554,18 @@ fn edit_record(edit_id: &str) -> String {
 /// The file name of an edit's record.
 const EDIT_RECORD: &str = "edit.json";
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}", tag = "edits", operation_id = "getEdit",
+    summary = "One edit",
+    params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
+    responses(
+        (status = 200, description = "The edit.", body = EditRecord),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn get(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -452,6 +575,18 @@ async fn get(
     artefact(&state, &id, edit_record(&edit_id), "application/json").await
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/svg", tag = "edits", operation_id = "getEditSvg",
+    summary = "The edited layered SVG",
+    params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
+    responses(
+        (status = 200, description = "The SVG.", body = String, content_type = "image/svg+xml"),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn edit_svg(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -460,6 +595,18 @@ async fn edit_svg(
     edit_file(&state, &owner, &id, &edit_id, FileKind::LayeredSvg).await
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/scene.json", tag = "edits", operation_id = "getEditScene",
+    summary = "The edited scene as JSON",
+    params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
+    responses(
+        (status = 200, description = "The scene.", body = SceneJson),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn edit_scene(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -468,6 +615,18 @@ async fn edit_scene(
     edit_file(&state, &owner, &id, &edit_id, FileKind::SceneJson).await
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/preview.png", tag = "edits", operation_id = "getEditPreview",
+    summary = "The edited scene as covec's renderer draws it",
+    params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
+    responses(
+        (status = 200, description = "The preview image.", body = Binary, content_type = "image/png"),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn edit_preview(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,

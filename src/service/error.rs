@@ -7,29 +7,95 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 
+/// A response in the API document.
+type DocResponse = utoipa::openapi::RefOr<utoipa::openapi::Response>;
+
 /// Media type of every error body.
 pub const PROBLEM_JSON: &str = "application/problem+json";
 
 /// A problem details object (RFC 9457) with covec's extensions.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Problem {
     /// `urn:covec:problem:<code>`.
     #[serde(rename = "type")]
     pub kind: String,
     pub title: String,
     pub status: u16,
+    /// For people, not for branching on. At most 512 characters (then cut, ending in `…`); a
+    /// value the client sent appears cut to 64 the same way; server paths never appear.
     pub detail: String,
     /// Stable machine-readable code.
     pub code: String,
     /// The configured limit that was exceeded, when one was.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = u64)]
     pub limit: Option<u64>,
     /// The measured value that exceeded `limit`.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = u64)]
     pub actual: Option<u64>,
     /// Seconds to wait before retrying (also sent as `Retry-After`).
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = u64)]
     pub retry_after: Option<u64>,
+}
+
+/// The response of every error status in the API document.
+impl<'r> utoipa::ToResponse<'r> for Problem {
+    fn response() -> (&'r str, DocResponse) {
+        ("Problem", problem_response("An RFC 9457 problem.", false))
+    }
+}
+
+/// 429 in the API document: a per-key limit, with `Retry-After`.
+pub struct TooManyRequests;
+
+impl<'r> utoipa::ToResponse<'r> for TooManyRequests {
+    fn response() -> (&'r str, DocResponse) {
+        let description = "The key has as many jobs queued as its limit allows (`key-queue-full`, \
+            with `limit` and `actual`), or submitted faster than its rate (`rate-limited`, `limit` \
+            in submissions per minute); other keys are unaffected. Retry after `Retry-After` seconds.";
+        ("TooManyRequests", problem_response(description, true))
+    }
+}
+
+/// 503 in the API document: retry later, with `Retry-After`.
+pub struct Unavailable;
+
+impl<'r> utoipa::ToResponse<'r> for Unavailable {
+    fn response() -> (&'r str, DocResponse) {
+        let description = "The queue is full (`queue-full`), every decode slot stayed busy \
+            (`decode-busy`) or the server is shutting down (`shutting-down`); retry after \
+            `Retry-After` seconds.";
+        ("Unavailable", problem_response(description, true))
+    }
+}
+
+/// A problem+json response, with the `Retry-After` header when `retry_after`.
+fn problem_response(description: &str, retry_after: bool) -> DocResponse {
+    use utoipa::openapi::{
+        ContentBuilder, HeaderBuilder, ObjectBuilder, Ref, ResponseBuilder, Type,
+    };
+    let mut response = ResponseBuilder::new().description(description).content(
+        PROBLEM_JSON,
+        ContentBuilder::new()
+            .schema(Some(Ref::from_schema_name("Problem")))
+            .build(),
+    );
+    if retry_after {
+        response = response.header(
+            "Retry-After",
+            HeaderBuilder::new()
+                .schema(Some(
+                    ObjectBuilder::new()
+                        .schema_type(Type::Integer)
+                        .minimum(Some(1)),
+                ))
+                .description(Some("Seconds to wait before retrying."))
+                .build(),
+        );
+    }
+    response.build().into()
 }
 
 /// Everything a request (or a job) can fail with.

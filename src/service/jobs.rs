@@ -13,13 +13,14 @@ use axum::{Extension, Json};
 use serde::Deserialize;
 
 use super::auth::{Client, Owner};
-use super::error::ApiError;
+use super::error::{ApiError, Problem, TooManyRequests, Unavailable};
 use super::model::{
-    Idempotency, InputManifest, JobRecord, JobView, Status, is_job_id, new_job_id, now_ms,
+    Idempotency, IdempotentReplayed, InputManifest, JobEvent, JobId, JobList, JobRecord, JobView,
+    Status, is_job_id, new_job_id, now_ms,
 };
 use super::queue::Admission;
 use super::runner::JobEntry;
-use super::submit::{self, decode_inputs};
+use super::submit::{self, JsonSubmission, MultipartSubmission, decode_inputs};
 use super::{AppState, Endpoint, endpoint};
 
 pub fn endpoints() -> Vec<Endpoint> {
@@ -66,17 +67,68 @@ fn view(state: &AppState, entry: &JobEntry) -> JobView {
 }
 
 /// The query of `POST /v1/jobs`.
-#[derive(Deserialize)]
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 #[serde(deny_unknown_fields)]
 struct CreateQuery {
     /// Use JPEGs cut short (the missing part decodes as grey) instead of refusing them.
     #[serde(default)]
+    #[param(default = false)]
     accept_truncated: bool,
 }
 
 const IDEMPOTENCY_KEY: &str = "idempotency-key";
 const PREFER: &str = "prefer";
 
+#[utoipa::path(post, path = "/v1/jobs", tag = "jobs", operation_id = "createJob",
+    summary = "Submit an image for vectorisation",
+    description = "Validates and stores the inputs, then queues the job: 201 with the job and \
+        `Location`. With `Idempotency-Key`, the same key and the same request return the first \
+        job again (`Idempotent-Replayed: true`); the same key with a different request is 422. \
+        A key holds for `--idempotency-window` (24 h) after its job was created; then it makes \
+        a new job. \
+        With `Prefer: wait=N` (RFC 7240) the answer waits up to N seconds (capped by the \
+        server's `--max-wait`, default 60) for the job to end: 200 with the ended job, else 202 \
+        with the job as it is (it goes on). Both carry `Preference-Applied: wait=N` with the \
+        wait used. Other and malformed preferences are ignored. A JPEG that ends before its \
+        end-of-image marker (cut short in transfer) is refused with 422 `truncated-image` \
+        unless `accept_truncated=true` (its missing part then decodes as grey).",
+    params(
+        CreateQuery,
+        ("Idempotency-Key" = Option<String>, Header, min_length = 1, max_length = 255),
+        ("Prefer" = Option<String>, Header, example = "wait=30",
+            description = "`wait=N`: seconds to wait for the job to end before answering."),
+        ("X-Client-Key" = Option<String>, Header, min_length = 1, max_length = 255,
+            pattern = r"^[\x20-\x7e]*[\x21-\x7e][\x20-\x7e]*$",
+            description = "Without API keys on the server: whose turn the job takes in the queue \
+                and whose per-key limits it counts against (ignored when the server has API \
+                keys: the key is the API key). Not a secret."),
+    ),
+    request_body(content(
+        (MultipartSubmission = "multipart/form-data"),
+        (JsonSubmission = "application/json"),
+    )),
+    responses(
+        (status = 200, description = "With `Prefer: wait`, the job ended within the wait.", body = JobView,
+            headers(("Location" = String, description = "The job's URL."),
+                    ("Preference-Applied" = String, description = "`wait=N`, the wait used."))),
+        (status = 201, description = "The job was created (or replayed for an Idempotency-Key).", body = JobView,
+            headers(("Location" = String, description = "The job's URL."),
+                    ("Idempotent-Replayed" = IdempotentReplayed,
+                        description = "Present when an earlier job is returned for the same Idempotency-Key."))),
+        (status = 202, description = "With `Prefer: wait`, the job had not ended within the wait; poll `Location`.",
+            body = JobView,
+            headers(("Location" = String, description = "The job's URL."),
+                    ("Preference-Applied" = String, description = "`wait=N`, the wait used."))),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 413, response = Problem),
+        (status = 415, response = Problem),
+        (status = 422, response = Problem),
+        (status = 429, response = TooManyRequests),
+        (status = 503, response = Unavailable),
+    ),
+)]
 async fn create(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -278,6 +330,17 @@ fn created(state: &AppState, entry: &JobEntry, replayed: bool) -> Response {
     response
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}", tag = "jobs", operation_id = "getJob",
+    summary = "A job's status, progress and links",
+    params(("id" = JobId, Path)),
+    responses(
+        (status = 200, description = "The job.", body = JobView),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn get(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -297,6 +360,20 @@ struct ListQuery {
 const DEFAULT_PAGE: usize = 20;
 const MAX_PAGE: usize = 100;
 
+#[utoipa::path(get, path = "/v1/jobs", tag = "jobs", operation_id = "listJobs",
+    summary = "List jobs, newest first",
+    params(
+        ("status" = Option<Status>, Query),
+        ("limit" = Option<u32>, Query, minimum = 1, maximum = 100),
+        ("cursor" = Option<JobId>, Query, description = "`next_cursor` of the previous page."),
+    ),
+    responses(
+        (status = 200, description = "One page of jobs.", body = JobList),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 500, response = Problem),
+    ),
+)]
 async fn list(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -347,11 +424,27 @@ async fn list(
         .iter()
         .map(|(record, placement)| JobView::new(record, *placement))
         .collect();
-    Ok(Json(serde_json::json!({ "items": items, "next_cursor": next_cursor })).into_response())
+    Ok(Json(JobList { items, next_cursor }).into_response())
 }
 
 /// 202 while a running job stops; 200 when the job is already terminal (or was queued and is
 /// now canceled).
+#[utoipa::path(post, path = "/v1/jobs/{id}/cancel", tag = "jobs", operation_id = "cancelJob",
+    summary = "Cancel a job",
+    description = "A queued job is canceled at once (200). A running job stops within one \
+        iteration and frees its worker (202; poll until `canceled`). A finished job is left as \
+        it is (200).",
+    params(("id" = JobId, Path)),
+    responses(
+        (status = 200, description = "The job is terminal.", body = JobView),
+        (status = 202, description = "The running job was asked to stop.", body = JobView),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 410, response = Problem),
+        (status = 500, response = Problem),
+    ),
+)]
 async fn cancel(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -371,6 +464,23 @@ async fn cancel(
     Ok((status, Json(view(&state, &entry))).into_response())
 }
 
+#[utoipa::path(delete, path = "/v1/jobs/{id}", tag = "jobs", operation_id = "deleteJob",
+    summary = "Delete a job and its files (a running job is stopped first)",
+    description = "The job's record is marked deleted first: once that is written (204) nothing \
+        brings the job back, neither a cancel racing the delete, nor its runner finishing, nor a \
+        restart. If it cannot be written (a full disk, a failing database) the answer is a 500 \
+        problem and the job is left whole. Files that cannot be removed at once (a read-only \
+        disk) are removed by the sweep of orphaned job directories later.",
+    params(("id" = JobId, Path)),
+    responses(
+        (status = 204, description = "Deleted."),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 410, response = Problem),
+        (status = 500, response = Problem),
+    ),
+)]
 async fn delete(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -391,6 +501,26 @@ const EVENT_INTERVAL: Duration = Duration::from_millis(100);
 /// `completed` event with the final job, then the stream ends. `X-Accel-Buffering: no` asks a
 /// proxy in front (nginx, ingress-nginx) to pass events as they come rather than buffer the
 /// stream until the job ends, and `Cache-Control: no-cache` keeps caches from storing it.
+#[utoipa::path(get, path = "/v1/jobs/{id}/events", tag = "jobs", operation_id = "jobEvents",
+    summary = "Server-Sent Events of the job's progress",
+    description = "`event: progress` with the job (as in `GET /v1/jobs/{id}`) whenever it \
+        changes (at most every 100 ms), then one `event: completed` with the final job, then the \
+        stream ends. Every event carries the whole job, and its `id:` is `{sequence}.{digest}`. \
+        Reconnecting with `Last-Event-ID` (as EventSource does) misses nothing and repeats \
+        nothing: the first event is the current state unless the client has it already (then the \
+        next change, or, for an ended job, an empty stream), numbered after the given id. A \
+        malformed id is ignored. A keep-alive comment is sent every 15 s. The response carries \
+        `X-Accel-Buffering: no` (nginx and ingress-nginx then pass events through unbuffered) \
+        and `Cache-Control: no-cache`.",
+    params(("id" = JobId, Path), ("Last-Event-ID" = Option<String>, Header)),
+    responses(
+        (status = 200, description = "The event stream.", body = JobEvent, content_type = "text/event-stream"),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn events(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,

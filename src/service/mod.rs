@@ -1,4 +1,5 @@
-//! `covec serve`: the HTTP vectorisation service (api/openapi.yaml is its contract).
+//! `covec serve`: the HTTP vectorisation service (api/openapi.yaml, `covec openapi`, is its
+//! contract).
 //!
 //! Clients submit an image as a job, follow its progress by polling or Server-Sent Events, and
 //! fetch the layered SVG, per-layer SVGs, JSON scene and stage previews. Jobs run on a dedicated
@@ -6,7 +7,8 @@
 //! error is an RFC 9457 problem (`error`).
 //!
 //! Each resource module lists its routes as [`Endpoint`]s; [`app`] builds the router from
-//! [`endpoints`], which a test compares with the OpenAPI document.
+//! [`endpoints`], which a test compares with the OpenAPI document ([`openapi_document`],
+//! generated from the handlers' attributes).
 
 mod auth;
 mod conn;
@@ -17,6 +19,7 @@ mod fair;
 pub mod fuzzing;
 mod jobs;
 mod model;
+mod openapi;
 mod ops;
 mod queue;
 mod results;
@@ -28,6 +31,7 @@ mod worker;
 
 pub use conn::ConnectionLimits;
 pub use fair::{KeyLimits, Scheduling};
+pub use openapi::document as openapi_document;
 pub use queue::QueueConfig;
 pub use submit::InputLimits;
 pub use webhooks::{WebhookConfig, WebhookConfigError};

@@ -4,9 +4,26 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+use utoipa::openapi::{ObjectBuilder, Ref, RefOr, Schema, Type};
 
 use super::error::Problem;
 use crate::pipeline::{Mode, Params, Progress};
+
+/// The job id's schema in the API document: what [`is_job_id`] accepts.
+pub struct JobId;
+
+impl utoipa::PartialSchema for JobId {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .pattern(Some("^job_[0-9a-f]{32}$"))
+            .description(Some("`job_` + a UUIDv7 in hex; ids sort by creation time."))
+            .into()
+    }
+}
+
+impl ToSchema for JobId {}
 
 /// Job id: `job_` + a UUIDv7 in hex, so ids sort by creation time.
 pub fn new_job_id() -> String {
@@ -23,7 +40,7 @@ pub fn is_job_id(id: &str) -> bool {
     })
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Status {
     Queued,
@@ -63,7 +80,12 @@ impl Status {
 
 /// How soon a job is wanted: `interactive` (someone is waiting: a web page) goes before `batch`
 /// (bulk work that fills the rest); see [`super::fair`] for the rule and its ageing.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[schema(
+    default = "interactive",
+    description = "`interactive` (someone waits: a web page) runs before `batch` (bulk work \
+        fills the rest); a batch job that has waited `--batch-age` counts as interactive."
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Priority {
     #[default]
@@ -87,7 +109,7 @@ impl Priority {
 }
 
 /// Why a job was asked to stop.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum CancelReason {
     /// `POST /v1/jobs/{id}/cancel`.
@@ -111,22 +133,28 @@ pub struct InputManifest {
 }
 
 /// Job progress as served (`progress` in the job resource and in events).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+#[schema(as = Progress)]
 pub struct ProgressView {
     /// Fraction of the whole run done, 0-1.
+    #[schema(minimum = 0, maximum = 1)]
     pub fraction: f32,
     pub stage: StageView,
     pub iteration: u32,
     pub iterations: u32,
+    #[schema(required)]
     pub loss: Option<f32>,
     pub elapsed_seconds: f32,
     /// Estimated seconds to completion, from the elapsed time and `fraction`.
+    #[schema(required)]
     pub eta_seconds: Option<f32>,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
+#[schema(as = Stage)]
 pub struct StageView {
     pub name: String,
+    /// 0-based.
     pub index: u32,
     pub count: u32,
 }
@@ -263,7 +291,7 @@ impl Webhook {
 }
 
 /// What a webhook can announce.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum WebhookEvent {
     /// A worker took the job.
@@ -298,7 +326,7 @@ pub struct Delivery {
     pub next_attempt_at: Option<u64>,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum DeliveryStatus {
     Pending,
@@ -334,60 +362,147 @@ pub fn rfc3339(unix_ms: u64) -> String {
 }
 
 /// The job resource as clients see it.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
+#[schema(as = Job)]
 pub struct JobView {
+    #[schema(value_type = JobId)]
     pub id: String,
     pub status: Status,
     pub priority: Priority,
-    /// Jobs that start before this one if no other arrives (0 = next), while queued.
+    /// Jobs that start before this one by the fair rule if no other arrives, 0 = next (only
+    /// while queued).
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = u64)]
     pub queue_position: Option<usize>,
-    /// While queued, once a job has succeeded since the server started: when this one should
-    /// start, if the jobs ahead take the mean run time of recent jobs ([`Placement`]).
+    /// Only while queued, once a job has succeeded since the server started: when this job
+    /// should start if each job ahead takes the mean run time of the last 20 that succeeded, on
+    /// as many workers as are busy now, the running jobs taken as half done.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = String, format = DateTime)]
     pub estimated_start_at: Option<String>,
+    #[schema(format = DateTime)]
     pub created_at: String,
+    #[schema(format = DateTime, required)]
     pub started_at: Option<String>,
+    #[schema(format = DateTime, required)]
     pub completed_at: Option<String>,
+    /// When the results will be removed.
+    #[schema(format = DateTime, required)]
     pub expires_at: Option<String>,
+    #[schema(required)]
     pub progress: Option<ProgressView>,
     pub params: Params,
+    /// The mode actually run, once known.
+    #[schema(required)]
     pub mode: Option<Mode>,
-    /// True once a stop was asked for; a running job then stops within one iteration.
+    /// A stop was asked for; a running job stops within one iteration.
     pub cancel_requested: bool,
+    #[schema(required)]
     pub cancel_reason: Option<CancelReason>,
+    /// Why the job failed.
+    #[schema(required)]
     pub error: Option<Problem>,
+    /// The results were removed after the retention period.
     pub data_removed: bool,
     pub previews: Vec<String>,
+    /// Present when the job was submitted with a webhook.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = WebhookView)]
     pub webhook: Option<WebhookView>,
-    /// Runs started by PostgreSQL workers; absent on the embedded backend.
+    /// PostgreSQL backend only: runs started by workers (a run whose worker vanished counts;
+    /// one stopped by shutdown does not).
     #[serde(skip_serializing_if = "is_zero")]
+    #[schema(required = false, minimum = 1)]
     pub attempts: u32,
     pub urls: Urls,
 }
 
+/// One page of `GET /v1/jobs`.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct JobList {
+    pub items: Vec<JobView>,
+    /// Pass as `cursor` for the next page; null on the last page.
+    #[schema(value_type = Option<JobId>, required)]
+    pub next_cursor: Option<String>,
+}
+
+/// One event of `GET /v1/jobs/{id}/events` in the API document; the stream itself is written
+/// by axum's [`Sse`](axum::response::sse::Sse).
+pub struct JobEvent;
+
+impl utoipa::PartialSchema for JobEvent {
+    fn schema() -> RefOr<Schema> {
+        let job = Ref::from_schema_name(JobView::name());
+        ObjectBuilder::new()
+            .description(Some("One event (keep-alive comments are not events)."))
+            .property("id", ObjectBuilder::new().schema_type(Type::String))
+            .property(
+                "event",
+                ObjectBuilder::new()
+                    .schema_type(Type::String)
+                    .enum_values(Some(["progress", "completed"])),
+            )
+            .property(
+                "data",
+                ObjectBuilder::new()
+                    .schema_type(Type::String)
+                    .content_media_type("application/json")
+                    .content_schema(Some(job)),
+            )
+            .required("event")
+            .required("data")
+            .into()
+    }
+}
+
+impl ToSchema for JobEvent {}
+
+/// The `Idempotent-Replayed` header in the API document: `true` when present.
+pub struct IdempotentReplayed;
+
+impl utoipa::PartialSchema for IdempotentReplayed {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .enum_values(Some(["true"]))
+            .into()
+    }
+}
+
+impl ToSchema for IdempotentReplayed {}
+
 /// A job's webhook as served: deliveries with their attempts, times in RFC 3339.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
+#[schema(as = Webhook)]
 pub struct WebhookView {
     pub url: String,
     pub events: Vec<WebhookEvent>,
+    /// One per event that has happened; every attempt of one uses the same `webhook-id` (`id`).
     pub deliveries: Vec<DeliveryView>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
+#[schema(as = Delivery)]
 pub struct DeliveryView {
+    /// The `webhook-id` header.
     pub id: String,
     pub event: WebhookEvent,
     pub status: DeliveryStatus,
     pub attempts: Vec<AttemptView>,
+    #[schema(format = DateTime, required)]
     pub next_attempt_at: Option<String>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
+#[schema(as = DeliveryAttempt)]
 pub struct AttemptView {
+    #[schema(format = DateTime)]
     pub at: String,
+    /// The receiver's HTTP status.
+    #[schema(required)]
     pub status_code: Option<u16>,
+    /// Why there was no answer.
+    #[schema(required)]
     pub error: Option<String>,
 }
 
@@ -419,7 +534,9 @@ impl From<&Webhook> for WebhookView {
     }
 }
 
-#[derive(Debug, Serialize)]
+/// Where the job's resources are.
+#[derive(Debug, Serialize, ToSchema)]
+#[schema(as = JobUrls)]
 pub struct Urls {
     #[serde(rename = "self")]
     pub job: String,
@@ -428,10 +545,11 @@ pub struct Urls {
     pub previews: String,
     /// Result links, present once the job has succeeded.
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = ResultUrls)]
     pub results: Option<ResultUrls>,
 }
 
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, ToSchema)]
 pub struct ResultUrls {
     pub svg: String,
     pub scene: String,

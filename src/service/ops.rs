@@ -24,11 +24,54 @@ pub fn endpoints() -> Vec<Endpoint> {
 }
 
 /// Liveness: the process answers.
+#[utoipa::path(get, path = "/healthz", tag = "operations", operation_id = "healthz",
+    summary = "Liveness", security(()),
+    responses((status = 200, description = "The process answers.", body = Liveness)),
+)]
 pub async fn healthz() -> impl IntoResponse {
-    axum::Json(serde_json::json!({ "status": "ok" }))
+    axum::Json(Liveness {
+        status: LivenessStatus::Ok,
+    })
+}
+
+/// The answer of `/healthz`.
+#[derive(serde::Serialize, utoipa::ToSchema)]
+pub struct Liveness {
+    status: LivenessStatus,
+}
+
+#[derive(serde::Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+enum LivenessStatus {
+    Ok,
+}
+
+/// The answer of `/readyz` (and a worker's ready probe).
+#[derive(serde::Serialize, utoipa::ToSchema)]
+pub struct Readiness {
+    status: ReadinessStatus,
+    /// `ok`, or why storage is not writable.
+    storage: String,
+    /// `ok`, or why not every worker is alive.
+    workers: String,
+}
+
+#[derive(serde::Serialize, utoipa::ToSchema)]
+enum ReadinessStatus {
+    #[serde(rename = "ready")]
+    Ready,
+    #[serde(rename = "not ready")]
+    NotReady,
 }
 
 /// Readiness: storage writable, every worker alive, not shutting down.
+#[utoipa::path(get, path = "/readyz", tag = "operations", operation_id = "readyz",
+    summary = "Readiness (storage writable, every worker alive, not shutting down)", security(()),
+    responses(
+        (status = 200, description = "Ready for work.", body = Readiness),
+        (status = 503, description = "Not ready.", body = Readiness),
+    ),
+)]
 async fn readyz(State(state): State<AppState>) -> Response {
     let queue = state.queue.clone();
     readiness(move || queue.store().check(), state.queue.is_ready()).await
@@ -45,11 +88,20 @@ pub async fn readiness(
             .await
             .unwrap_or_else(|error| Err(error.to_string()));
     let ready = storage.is_ok() && workers;
-    let body = serde_json::json!({
-        "status": if ready { "ready" } else { "not ready" },
-        "storage": storage.err().unwrap_or_else(|| "ok".into()),
-        "workers": if workers { "ok" } else { "draining or a worker stopped" },
-    });
+    let body = Readiness {
+        status: if ready {
+            ReadinessStatus::Ready
+        } else {
+            ReadinessStatus::NotReady
+        },
+        storage: storage.err().unwrap_or_else(|| "ok".into()),
+        workers: if workers {
+            "ok"
+        } else {
+            "draining or a worker stopped"
+        }
+        .into(),
+    };
     let status = if ready {
         StatusCode::OK
     } else {
@@ -58,6 +110,16 @@ pub async fn readiness(
     (status, axum::Json(body)).into_response()
 }
 
+#[utoipa::path(get, path = "/metrics", tag = "operations", operation_id = "metrics",
+    summary = "Prometheus metrics",
+    description = "`covec_jobs_queued`, `covec_jobs_running`, `covec_workers` (gauges), \
+        `covec_job_duration_seconds{outcome}` (histogram), \
+        `covec_http_requests_total{method,route,status}` (counter), \
+        `covec_http_request_duration_seconds{method,route}` (histogram).",
+    security(()),
+    responses((status = 200, description = "Text exposition format 0.0.4.", body = String,
+        content_type = "text/plain")),
+)]
 async fn metrics(State(state): State<AppState>) -> Response {
     let (queued, running) = state.queue.depth();
     let queue = QueueGauges {

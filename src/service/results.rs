@@ -10,9 +10,11 @@ use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
 
 use super::auth::Owner;
-use super::error::ApiError;
+use utoipa::openapi::{ObjectBuilder, RefOr, Schema, Type};
+
+use super::error::{ApiError, Problem};
 use super::jobs::find;
-use super::model::{JobRecord, Status};
+use super::model::{JobId, JobRecord, Status};
 use super::queue::Queue;
 use super::{AppState, Endpoint, endpoint};
 use crate::output::{self, FileKind, RasterError};
@@ -29,6 +31,66 @@ pub fn endpoints() -> Vec<Endpoint> {
         endpoint(Method::GET, "/v1/jobs/{id}/previews/{file}", preview),
     ]
 }
+
+/// `GET /v1/jobs/{id}/previews`.
+#[derive(serde::Serialize, utoipa::ToSchema)]
+struct PreviewList {
+    items: Vec<PreviewLink>,
+}
+
+#[derive(serde::Serialize, utoipa::ToSchema)]
+struct PreviewLink {
+    name: String,
+    url: String,
+}
+
+/// The `{file}` of `GET /v1/jobs/{id}/layers/{file}` in the API document: one per layer.
+struct LayerFile;
+
+impl utoipa::PartialSchema for LayerFile {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .enum_values(Some(
+                LayerKind::ALL.map(|kind| format!("{}.svg", kind.name())),
+            ))
+            .into()
+    }
+}
+
+impl utoipa::ToSchema for LayerFile {}
+
+/// A scene (`scene.json`) in the API document.
+pub(super) struct SceneJson;
+
+impl utoipa::PartialSchema for SceneJson {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::Object)
+            .description(Some("covec's scene model (see `src/scene.rs`)."))
+            .into()
+    }
+}
+
+impl utoipa::ToSchema for SceneJson {
+    fn name() -> std::borrow::Cow<'static, str> {
+        "Scene".into()
+    }
+}
+
+/// A binary body (PNG, PDF) in the API document.
+pub(super) struct Binary;
+
+impl utoipa::PartialSchema for Binary {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .content_encoding("binary")
+            .into()
+    }
+}
+
+impl utoipa::ToSchema for Binary {}
 
 pub(super) fn require_success(record: &JobRecord) -> Result<(), ApiError> {
     if record.data_removed {
@@ -77,13 +139,31 @@ pub(super) async fn artefact(
 }
 
 /// The query of `GET /v1/jobs/{id}/svg`.
-#[derive(serde::Deserialize)]
+#[derive(serde::Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
 struct SvgQuery {
-    /// `true`: the flattened SVG (opaque paths, no blend modes) instead of the layered one.
+    /// `true`: the same picture as plain opaque paths in painter's order (no blend modes,
+    /// opacities, filters or images), for programs without `multiply` or `plus-lighter`; made
+    /// on request from the stored scene. Anything but `true`/`false`: 400 `bad-query`.
     #[serde(default)]
+    #[param(default = false)]
     flatten: bool,
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/svg", tag = "results", operation_id = "getSvg",
+    summary = "The layered SVG, or with `flatten=true` the flattened one",
+    params(("id" = JobId, Path), SvgQuery),
+    responses(
+        (status = 200, description = "The SVG (layered - albedo, shade with \
+            `mix-blend-mode:multiply`, light with `plus-lighter` - or flattened).",
+            body = String, content_type = "image/svg+xml"),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn svg(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -100,6 +180,22 @@ async fn svg(
     }
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/pdf", tag = "results", operation_id = "getPdf",
+    summary = "The result as a vector PDF of the flattened picture",
+    description = "One page the original image's size (96 px per inch), the flattened SVG's \
+        opaque regions as filled paths (no blend modes needed). Made on request from the stored \
+        scene.",
+    params(("id" = JobId, Path)),
+    responses(
+        (status = 200, description = "The PDF.", body = Binary, content_type = "application/pdf"),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+        (status = 500, response = Problem),
+    ),
+)]
 async fn pdf(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -133,6 +229,18 @@ async fn flat_file(state: &AppState, id: String, kind: FileKind) -> Result<Respo
     Ok(([(header::CONTENT_TYPE, kind.media_type())], bytes).into_response())
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/layers/{file}", tag = "results",
+    operation_id = "getLayerSvg", summary = "One layer as a standalone SVG",
+    params(("id" = JobId, Path), ("file" = inline(LayerFile), Path)),
+    responses(
+        (status = 200, description = "The layer's SVG.", body = String, content_type = "image/svg+xml"),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn layer(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -151,6 +259,18 @@ async fn layer(
     scene_file(&state, &id, "", FileKind::Layer(kind)).await
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/scene.json", tag = "results", operation_id = "getScene",
+    summary = "The scene as JSON (layers → paths → points, colour, opacity), loadable losslessly",
+    params(("id" = JobId, Path)),
+    responses(
+        (status = 200, description = "The scene.", body = SceneJson),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn scene(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -172,6 +292,27 @@ struct PngQuery {
     width: Option<String>,
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/png", tag = "results", operation_id = "getPng",
+    summary = "The result as a PNG of any width, drawn by covec's own renderer",
+    description = "The picture covec optimised (albedo × shade + light), rendered on request \
+        with the geometry scaled to `width`; no viewer's blend modes involved. Equal to \
+        `covec render scene.json --width N` byte for byte. One render runs at a time.",
+    params(("id" = JobId, Path), ("width" = Option<u64>, Query, minimum = 1, maximum = 4294967295.0,
+        description = "Width in pixels (default: the original image's width); the height keeps \
+            the aspect ratio. 0, negative or non-numeric: 422 `invalid-params`; width × height \
+            over `--max-pixels`: 413 `too-many-pixels`.")),
+    responses(
+        (status = 200, description = "The PNG.", body = Binary, content_type = "image/png"),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 409, response = Problem),
+        (status = 410, response = Problem),
+        (status = 413, response = Problem),
+        (status = 422, response = Problem),
+        (status = 500, response = Problem),
+    ),
+)]
 async fn png(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -223,6 +364,17 @@ pub(super) fn stored_scene(queue: &Queue, job: &str, prefix: &str) -> Result<Sce
     serde_json::from_slice(&bytes).map_err(|e| ApiError::Internal(format!("stored scene: {e}")))
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/previews", tag = "results", operation_id = "listPreviews",
+    summary = "The stage previews so far (each appears as soon as its stage ends)",
+    params(("id" = JobId, Path)),
+    responses(
+        (status = 200, description = "The previews, in stage order.", body = PreviewList),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn previews(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
@@ -233,14 +385,29 @@ async fn previews(
     if record.data_removed {
         return Err(ApiError::DataRemoved(id));
     }
-    let items: Vec<_> = record
+    let items = record
         .previews
         .iter()
-        .map(|name| serde_json::json!({ "name": name, "url": format!("/v1/jobs/{id}/previews/{name}.png") }))
+        .map(|name| PreviewLink {
+            url: format!("/v1/jobs/{id}/previews/{name}.png"),
+            name: name.clone(),
+        })
         .collect();
-    Ok(Json(serde_json::json!({ "items": items })).into_response())
+    Ok(Json(PreviewList { items }).into_response())
 }
 
+#[utoipa::path(get, path = "/v1/jobs/{id}/previews/{file}", tag = "results", operation_id = "getPreview",
+    summary = "One stage preview",
+    params(("id" = JobId, Path), ("file" = String, Path, pattern = r"^[A-Za-z0-9_-]+\.png$",
+        example = "00-input.png", description = "`<name>.png` for a name listed by `/previews`.")),
+    responses(
+        (status = 200, description = "The preview image.", body = Binary, content_type = "image/png"),
+        (status = 400, response = Problem),
+        (status = 401, response = Problem),
+        (status = 404, response = Problem),
+        (status = 410, response = Problem),
+    ),
+)]
 async fn preview(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,

@@ -11,8 +11,12 @@ use http_body_util::BodyExt;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
+use utoipa::ToSchema;
+use utoipa::openapi::schema::{AdditionalProperties, ArrayBuilder, SchemaFormat};
+use utoipa::openapi::{ObjectBuilder, Ref, RefOr, Schema, Type};
+
 use super::error::ApiError;
-use super::model::Priority;
+use super::model::{Priority, WebhookEvent};
 use crate::imageio;
 use crate::pipeline::{Inputs, Masks, ParamLimits, Params};
 
@@ -101,20 +105,114 @@ pub struct WebhookRequest {
     pub events: Option<Vec<String>>,
 }
 
-/// The JSON form of a submission: images as base64 (optionally as `data:` URLs).
-#[derive(Deserialize)]
+/// The JSON form of a submission: images as standard base64, optionally as
+/// `data:<type>;base64,` URLs.
+#[derive(Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
-struct JsonSubmission {
+pub(super) struct JsonSubmission {
+    #[schema(value_type = Base64Image)]
     image: String,
+    #[schema(value_type = Option<Base64Image>)]
     albedo: Option<String>,
     #[serde(default)]
+    #[schema(value_type = Vec<Base64Image>)]
     masks: Vec<String>,
+    #[schema(value_type = Option<Base64Image>)]
     labels: Option<String>,
+    #[schema(value_type = Option<Params>)]
     params: Option<serde_json::Value>,
+    #[schema(value_type = Option<WebhookUrl>)]
     webhook: Option<String>,
+    /// Events for the webhook (default `[completed]`).
+    #[schema(value_type = Option<Vec<WebhookEvent>>, min_items = 1)]
     webhook_events: Option<Vec<String>>,
+    #[schema(value_type = Option<Priority>)]
     priority: Option<String>,
 }
+
+/// One base64 image in the API document: standard base64, optionally a `data:` URL, with
+/// padding as encoders write it.
+pub(super) struct Base64Image;
+
+impl utoipa::PartialSchema for Base64Image {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .content_encoding("base64")
+            .pattern(Some(
+                "^(data:[^,]*;base64,)?([A-Za-z0-9+/]{4})*([A-Za-z0-9+/]{2}==|[A-Za-z0-9+/]{3}=)?$",
+            ))
+            .into()
+    }
+}
+
+impl utoipa::ToSchema for Base64Image {}
+
+/// A submission's `webhook` in the API document.
+pub(super) struct WebhookUrl;
+
+impl utoipa::PartialSchema for WebhookUrl {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .max_length(Some(2048))
+            .format(Some(SchemaFormat::Custom("uri".into())))
+            .description(Some(
+                "An absolute http(s) URL without user information, on a host of the server's \
+                 allow-list (`--webhook-hosts`); others are refused with 422 \
+                 `webhook-host-not-allowed`. Redirects are not followed.",
+            ))
+            .into()
+    }
+}
+
+impl utoipa::ToSchema for WebhookUrl {}
+
+/// The multipart form of a submission in the API document (read field by field by
+/// [`read_multipart`]).
+pub(super) struct MultipartSubmission;
+
+impl utoipa::PartialSchema for MultipartSubmission {
+    fn schema() -> RefOr<Schema> {
+        let binary = |description: &str| {
+            ObjectBuilder::new()
+                .schema_type(Type::String)
+                .content_encoding("binary")
+                .description(Some(description))
+        };
+        ObjectBuilder::new()
+            .property("image", binary("PNG, JPEG or WebP."))
+            .property("albedo", binary("An albedo map with the image's aspect ratio."))
+            .property(
+                "mask",
+                ArrayBuilder::new()
+                    .items(
+                        ObjectBuilder::new()
+                            .schema_type(Type::String)
+                            .content_encoding("binary"),
+                    )
+                    .description(Some(
+                        "Binary masks, each the image's size (repeat the field). Not with `labels`.",
+                    )),
+            )
+            .property("labels", binary("One label map the image's size."))
+            .property("params", Ref::from_schema_name(Params::name()))
+            .property("webhook", Ref::from_schema_name(WebhookUrl::name()))
+            .property(
+                "webhook_events",
+                ObjectBuilder::new().schema_type(Type::String).description(Some(
+                    "Comma-separated events for the webhook, `started` and/or `completed` \
+                     (default `completed`).",
+                )),
+            )
+            .property("priority", Ref::from_schema_name(<Priority as ToSchema>::name()))
+            .required("image")
+            .additional_properties(Some(AdditionalProperties::FreeForm(false)))
+            .into()
+    }
+}
+
+impl utoipa::ToSchema for MultipartSubmission {}
 
 /// Reads the body of `POST /v1/jobs`.
 pub async fn read(request: Request, limits: &InputLimits) -> Result<Submission, ApiError> {

@@ -1,0 +1,352 @@
+//! The API document (api/openapi.yaml), generated from the handlers' `#[utoipa::path]`
+//! attributes and the models' `ToSchema` types; `covec openapi` writes it. What the attributes
+//! cannot say (the links schemathesis follows from a created job, the request examples that
+//! create one, multipart encodings, the security scheme) is added by [`Contract`].
+
+use base64::Engine;
+use serde_json::{Value, json};
+use utoipa::openapi::encoding::EncodingBuilder;
+use utoipa::openapi::link::LinkBuilder;
+use utoipa::openapi::request_body::RequestBody;
+use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme};
+use utoipa::openapi::{Components, Content, OpenApi as Document, RefOr, Server};
+use utoipa::{Modify, OpenApi};
+
+use super::error::{Problem, TooManyRequests, Unavailable};
+use super::model::IdempotentReplayed;
+use super::{edits, jobs, ops, results};
+use crate::edit::ReferenceParams;
+
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "covec vectorisation service",
+        description = DESCRIPTION,
+        license(name = "Apache-2.0", identifier = "Apache-2.0"),
+    ),
+    paths(
+        jobs::create, jobs::list, jobs::get, jobs::delete, jobs::cancel, jobs::events,
+        results::svg, results::layer, results::scene, results::png, results::pdf,
+        results::previews, results::preview,
+        edits::create, edits::get, edits::edit_svg, edits::edit_scene, edits::edit_preview,
+        ops::healthz, ops::readyz, ops::metrics,
+    ),
+    // Schemas only referenced from hand-built ones (headers, multipart forms).
+    components(
+        schemas(IdempotentReplayed, ReferenceParams),
+        responses(Problem, TooManyRequests, Unavailable),
+    ),
+    tags((name = "jobs"), (name = "results"), (name = "edits"), (name = "operations")),
+    modifiers(&Contract),
+)]
+struct ApiDoc;
+
+/// The document as YAML, keys sorted (so the text changes only when the API does).
+pub fn document() -> String {
+    let mut value = serde_json::to_value(ApiDoc::openapi()).expect("the document serialises");
+    sort_keys(&mut value);
+    yaml_serde::to_string(&value).expect("JSON values serialise as YAML")
+}
+
+/// Objects' keys in order: utoipa keeps some maps (extensions) in hash order.
+fn sort_keys(value: &mut Value) {
+    match value {
+        Value::Object(map) => {
+            let mut entries: Vec<_> = std::mem::take(map).into_iter().collect();
+            entries.sort_by(|(a, _), (b, _)| a.cmp(b));
+            for (key, mut item) in entries {
+                sort_keys(&mut item);
+                map.insert(key, item);
+            }
+        }
+        Value::Array(items) => items.iter_mut().for_each(sort_keys),
+        _ => {}
+    }
+}
+
+/// Every operation on a job, reachable from the job `POST /v1/jobs` answers with
+/// (schemathesis' stateful phase follows these links).
+const JOB_OPERATIONS: [&str; 12] = [
+    "getJob",
+    "jobEvents",
+    "cancelJob",
+    "deleteJob",
+    "getSvg",
+    "getScene",
+    "getLayerSvg",
+    "getPng",
+    "getPdf",
+    "listPreviews",
+    "getPreview",
+    "createEdit",
+];
+
+/// Every operation on an edit, reachable from the edit `POST /v1/jobs/{id}/edits` answers.
+const EDIT_OPERATIONS: [&str; 4] = ["getEdit", "getEditSvg", "getEditScene", "getEditPreview"];
+
+/// What the attributes cannot say.
+struct Contract;
+
+impl Modify for Contract {
+    fn modify(&self, document: &mut Document) {
+        // OpenAPI 3.1's `info.summary`, which utoipa's `Info` has no field for.
+        document
+            .info
+            .extensions
+            .get_or_insert_with(Default::default)
+            .insert("summary".into(), SUMMARY.into());
+        document.servers = Some(vec![Server::new("http://127.0.0.1:8080")]);
+        // Anonymous unless the server has API keys.
+        document.security = Some(vec![
+            SecurityRequirement::default(),
+            SecurityRequirement::new("bearer", Vec::<String>::new()),
+        ]);
+        document
+            .components
+            .get_or_insert_with(Components::new)
+            .add_security_scheme(
+                "bearer",
+                SecurityScheme::Http(
+                    HttpBuilder::new()
+                        .scheme(HttpAuthScheme::Bearer)
+                        .description(Some("Only when the server has API keys configured."))
+                        .build(),
+                ),
+            );
+        let paths = &mut document.paths.paths;
+        let create_job = paths
+            .get_mut("/v1/jobs")
+            .and_then(|item| item.post.as_mut())
+            .expect("POST /v1/jobs is documented");
+        for status in ["200", "201", "202"] {
+            if let Some(RefOr::T(response)) = create_job.responses.responses.get_mut(status) {
+                for operation in JOB_OPERATIONS {
+                    response.links.insert(
+                        link_name(operation),
+                        LinkBuilder::new()
+                            .operation_id(operation)
+                            .parameter("id", "$response.body#/id")
+                            .build()
+                            .into(),
+                    );
+                }
+            }
+        }
+        if let Some(content) = body_content(&mut create_job.request_body, "application/json") {
+            content.example = Some(small_job());
+        }
+        if let Some(content) = body_content(&mut create_job.request_body, "multipart/form-data") {
+            json_part(content, "params");
+        }
+        let previews = paths
+            .get_mut("/v1/jobs/{id}/previews")
+            .and_then(|item| item.get.as_mut())
+            .expect("GET /v1/jobs/{id}/previews is documented");
+        if let Some(RefOr::T(response)) = previews.responses.responses.get_mut("200") {
+            response.links.insert(
+                "GetFirstPreview".into(),
+                LinkBuilder::new()
+                    .operation_id("getPreview")
+                    .parameter("id", "$request.path.id")
+                    .parameter("file", "{$response.body#/items/0/name}.png")
+                    .build()
+                    .into(),
+            );
+        }
+        let create_edit = paths
+            .get_mut("/v1/jobs/{id}/edits")
+            .and_then(|item| item.post.as_mut())
+            .expect("POST /v1/jobs/{id}/edits is documented");
+        if let Some(RefOr::T(response)) = create_edit.responses.responses.get_mut("201") {
+            for operation in EDIT_OPERATIONS {
+                response.links.insert(
+                    link_name(operation),
+                    LinkBuilder::new()
+                        .operation_id(operation)
+                        .parameter("id", "$response.body#/job_id")
+                        .parameter("edit_id", "$response.body#/id")
+                        .build()
+                        .into(),
+                );
+            }
+        }
+        if let Some(content) = body_content(&mut create_edit.request_body, "multipart/form-data") {
+            json_part(content, "params");
+        }
+        // A change names exactly one of `path` and `at` (checked when the edit is read; `null`
+        // counts as absent).
+        if let Some(RefOr::T(utoipa::openapi::Schema::Object(change))) = document
+            .components
+            .as_mut()
+            .and_then(|components| components.schemas.get_mut("ChangeRequest"))
+        {
+            change
+                .extensions
+                .get_or_insert_with(Default::default)
+                .insert(
+                    "oneOf".into(),
+                    json!([
+                        { "required": ["path"], "properties": { "path": { "type": "string" } } },
+                        { "required": ["at"], "properties": { "at": { "type": "object" } } },
+                    ]),
+                );
+        }
+    }
+}
+
+/// The request body's content of `media_type`, when the attributes declared it.
+fn body_content<'a>(
+    body: &'a mut Option<RefOr<RequestBody>>,
+    media_type: &str,
+) -> Option<&'a mut Content> {
+    match body.as_mut()? {
+        RefOr::T(body) => match body.content.get_mut(media_type)? {
+            RefOr::T(content) => Some(content),
+            RefOr::Ref(_) => None,
+        },
+        RefOr::Ref(_) => None,
+    }
+}
+
+/// Marks the multipart form field `name` as a JSON part.
+fn json_part(content: &mut Content, name: &str) {
+    content.encoding.insert(
+        name.into(),
+        EncodingBuilder::new()
+            .content_type(Some("application/json"))
+            .build(),
+    );
+}
+
+/// `getJob` → `GetJob`.
+fn link_name(operation: &str) -> String {
+    let mut name = operation.to_owned();
+    name[..1].make_ascii_uppercase();
+    name
+}
+
+/// A real job of seconds of work (a 16×16 PNG, few paths and iterations): what the links from
+/// its answer then follow.
+fn small_job() -> Value {
+    let png = crate::imageio::encode_png(&crate::render::Image::filled(16, 16, [0.2, 0.5, 0.8]));
+    json!({
+        "image": base64::engine::general_purpose::STANDARD.encode(png),
+        "params": {
+            "paths": 8, "max_size": 48, "seed": 1,
+            "iterations": {
+                "structure": 3, "reconstruction": 3, "refine_rounds": 1, "refine": 3, "polish": 3,
+            },
+        },
+    })
+}
+
+/// The document's one-line summary.
+const SUMMARY: &str =
+    "Photographs to layered, editable SVG (albedo × shade + light), as asynchronous jobs.";
+
+/// The document's description: how the service behaves beyond single operations.
+const DESCRIPTION: &str = "\
+Submit an image as a job (`POST /v1/jobs`), follow it by polling `GET /v1/jobs/{id}` or with
+Server-Sent Events (`GET /v1/jobs/{id}/events`), then fetch the layered SVG, the per-layer
+SVGs, the JSON scene, a PNG of any width and the stage previews.
+
+Every error is an RFC 9457 problem (`application/problem+json`) with a stable `code`:
+`unauthorized`, `job-not-found`, `job-expired` (410: the job ended longer ago than the
+record retention and its record is deleted; an id that never existed is `job-not-found`),
+`malformed-job-id`, `route-not-found`, `method-not-allowed`,
+`result-not-found`, `unsupported-media-type`, `body-too-large`, `too-many-pixels`,
+`too-many-masks`, `too-many-changes`, `inputs-too-large`, `bad-request`, `bad-query`,
+`undecodable-image`, `truncated-image`, `invalid-params`, `invalid-input`, `webhook-host-not-allowed`,
+`idempotency-key-reused`, `key-queue-full`, `rate-limited`, `queue-full`, `decode-busy`,
+`shutting-down`,
+`job-not-succeeded`, `data-removed`, `result-corrupt` (a stored result that no longer
+matches the digest recorded when it was written), `internal`, and in a failed job's `error`
+also `time-limit`, `pipeline-crashed`, `workers-lost` (PostgreSQL backend: every
+attempt's worker vanished). `type` is `urn:covec:problem:<code>`.
+
+Limits (server flags / environment variables, defaults in brackets): body size
+`--max-body-bytes` [32 MiB], pixels per image `--max-pixels` [16 000 000, read from the header
+before decoding], masks `--max-masks` [256], `params.paths` `--max-paths` [1024],
+`params.max_size` `--max-size` [1024], total iterations `--max-iterations` [5000], run time
+per job `--job-time-limit` [600 s], queued jobs `--max-queued` [64], result retention
+`--retention` [24 h], record retention `--record-retention` [30 days], Idempotency-Key
+window `--idempotency-window` [24 h], decoded inputs per job `--max-decoded-bytes` [256 MiB], requests
+decoding at once `--decode-slots` [2; others wait up to `--decode-wait` [5 s], then 503 `decode-busy`], JSON
+edit bodies 1 MiB and 4096 changes (fixed).
+
+Webhooks: a submission may name a `webhook` URL (and `webhook_events`, default
+`[completed]`); the server POSTs `{\"type\": \"job.started\" | \"job.completed\", \"timestamp\",
+\"data\": <Job>}` there, signed as Standard Webhooks (`webhook-id`, `webhook-timestamp`,
+`webhook-signature: v1,<base64 HMAC-SHA256 of \"id.timestamp.body\">` with the server's
+secret), retrying with doubling delays until a 2xx or `--webhook-attempts` [8]. Each
+attempt shows in the job's `webhook.deliveries`. Destinations must be on the server's
+allow-list (`--webhook-hosts`, none by default): others are refused with 422
+`webhook-host-not-allowed`.
+
+With API keys configured (`--api-keys`), every `/v1` request needs
+`Authorization: Bearer <key>`, and a job is visible only to the key that created it (others
+get 404).
+
+Fair scheduling: jobs take turns by key (the API key; without keys the `X-Client-Key`
+header, or one anonymous key for requests without it). The next job to run is chosen among
+keys below their running limit: `interactive` jobs first (a `batch` job that has waited
+`--batch-age` [300 s] counts as interactive), then the key with the fewest jobs running,
+then the key served longest ago, then its oldest job. Per-key limits: queued jobs
+`--max-queued-per-key` [none beyond `--max-queued`; then 429 `key-queue-full`], running jobs
+`--max-running-per-key` [none; further jobs wait], submissions per minute `--rate-per-key`
+[none; then 429 `rate-limited`], with per-key overrides (`--key-limits`).
+";
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeSet;
+
+    use super::*;
+
+    /// api/openapi.yaml is what the code generates: regenerate it after changing the API.
+    #[test]
+    fn the_checked_in_document_is_the_generated_one() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/api/openapi.yaml");
+        let checked_in = std::fs::read_to_string(path).unwrap_or_default();
+        assert!(
+            checked_in == document(),
+            "api/openapi.yaml differs from the document the code generates; regenerate it with \
+             `cargo run -- openapi -o api/openapi.yaml`"
+        );
+    }
+
+    /// Every (method, path) the router serves is documented, and every documented operation is
+    /// served. Paths are compared in the OpenAPI form (`{id}`), which the router uses too.
+    #[test]
+    fn the_document_matches_the_router() {
+        let document = ApiDoc::openapi();
+        let mut documented = BTreeSet::new();
+        for (path, item) in &document.paths.paths {
+            for (method, operation) in [
+                ("GET", &item.get),
+                ("POST", &item.post),
+                ("PUT", &item.put),
+                ("PATCH", &item.patch),
+                ("DELETE", &item.delete),
+            ] {
+                if operation.is_some() {
+                    documented.insert((method.to_owned(), path.clone()));
+                }
+            }
+        }
+        let served: BTreeSet<_> = super::super::endpoints()
+            .iter()
+            .map(|endpoint| (endpoint.method.to_string(), endpoint.path.to_owned()))
+            .collect();
+        assert_eq!(
+            served.difference(&documented).collect::<Vec<_>>(),
+            Vec::<&(String, String)>::new(),
+            "served but not documented"
+        );
+        assert_eq!(
+            documented.difference(&served).collect::<Vec<_>>(),
+            Vec::<&(String, String)>::new(),
+            "documented but not served"
+        );
+    }
+}
