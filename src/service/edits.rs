@@ -18,7 +18,7 @@ use utoipa::openapi::schema::RefBuilder;
 use utoipa::openapi::{ObjectBuilder, Ref, RefOr, Schema, Type};
 
 use super::auth::Owner;
-use super::error::{ApiError, Problem, Unavailable};
+use super::error::{ApiError, Problem, ResultProblems, Unavailable};
 use super::jobs::find;
 use super::model::JobId;
 use super::results::{Binary, SceneJson, artefact, require_success, scene_file, stored_scene};
@@ -235,11 +235,7 @@ enum EditRequest {
     responses(
         (status = 201, description = "The edit.", body = EditRecord,
             headers(("Location" = String, description = "The edit's URL."))),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
         (status = 413, response = Problem),
         (status = 415, response = Problem),
         (status = 422, response = Problem),
@@ -559,11 +555,7 @@ const EDIT_RECORD: &str = "edit.json";
     params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
     responses(
         (status = 200, description = "The edit.", body = EditRecord),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
     ),
 )]
 async fn get(
@@ -580,11 +572,7 @@ async fn get(
     params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
     responses(
         (status = 200, description = "The SVG.", body = String, content_type = "image/svg+xml"),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
     ),
 )]
 async fn edit_svg(
@@ -600,11 +588,7 @@ async fn edit_svg(
     params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
     responses(
         (status = 200, description = "The scene.", body = SceneJson),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
     ),
 )]
 async fn edit_scene(
@@ -620,11 +604,7 @@ async fn edit_scene(
     params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
     responses(
         (status = 200, description = "The preview image.", body = Binary, content_type = "image/png"),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
     ),
 )]
 async fn edit_preview(

@@ -71,6 +71,36 @@ impl<'r> utoipa::ToResponse<'r> for Unavailable {
     }
 }
 
+/// The problems of every operation on one job (`/v1/jobs/{id}…`) in the API document: a
+/// malformed id (400), no key (401), no such job (404) and an expired one (410).
+pub struct JobProblems;
+
+impl utoipa::IntoResponses for JobProblems {
+    fn responses() -> std::collections::BTreeMap<String, DocResponse> {
+        problem_statuses(&[400, 401, 404, 410])
+    }
+}
+
+/// [`JobProblems`] and 409 `job-not-succeeded`: what every read of a job's results answers.
+pub struct ResultProblems;
+
+impl utoipa::IntoResponses for ResultProblems {
+    fn responses() -> std::collections::BTreeMap<String, DocResponse> {
+        problem_statuses(&[400, 401, 404, 409, 410])
+    }
+}
+
+/// The [`Problem`] response under each of `statuses`.
+fn problem_statuses(statuses: &[u16]) -> std::collections::BTreeMap<String, DocResponse> {
+    statuses
+        .iter()
+        .map(|status| {
+            let problem = utoipa::openapi::Ref::from_response_name("Problem");
+            (status.to_string(), problem.into())
+        })
+        .collect()
+}
+
 /// A problem+json response, with the `Retry-After` header when `retry_after`.
 fn problem_response(description: &str, retry_after: bool) -> DocResponse {
     use utoipa::openapi::{

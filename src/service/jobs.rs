@@ -13,7 +13,7 @@ use axum::{Extension, Json};
 use serde::Deserialize;
 
 use super::auth::{Client, Owner};
-use super::error::{ApiError, Problem, TooManyRequests, Unavailable};
+use super::error::{ApiError, JobProblems, Problem, TooManyRequests, Unavailable};
 use super::model::{
     Idempotency, IdempotentReplayed, InputManifest, JobEvent, JobId, JobList, JobRecord, JobView,
     Status, is_job_id, new_job_id, now_ms,
@@ -335,10 +335,7 @@ fn created(state: &AppState, entry: &JobEntry, replayed: bool) -> Response {
     params(("id" = JobId, Path)),
     responses(
         (status = 200, description = "The job.", body = JobView),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 410, response = Problem),
+        JobProblems,
     ),
 )]
 async fn get(
@@ -438,10 +435,7 @@ async fn list(
     responses(
         (status = 200, description = "The job is terminal.", body = JobView),
         (status = 202, description = "The running job was asked to stop.", body = JobView),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 410, response = Problem),
+        JobProblems,
         (status = 500, response = Problem),
     ),
 )]
@@ -474,10 +468,7 @@ async fn cancel(
     params(("id" = JobId, Path)),
     responses(
         (status = 204, description = "Deleted."),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 410, response = Problem),
+        JobProblems,
         (status = 500, response = Problem),
     ),
 )]
@@ -515,10 +506,7 @@ const EVENT_INTERVAL: Duration = Duration::from_millis(100);
     params(("id" = JobId, Path), ("Last-Event-ID" = Option<String>, Header)),
     responses(
         (status = 200, description = "The event stream.", body = JobEvent, content_type = "text/event-stream"),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 410, response = Problem),
+        JobProblems,
     ),
 )]
 async fn events(

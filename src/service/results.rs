@@ -12,7 +12,7 @@ use axum::{Extension, Json};
 use super::auth::Owner;
 use utoipa::openapi::{ObjectBuilder, RefOr, Schema, Type};
 
-use super::error::{ApiError, Problem};
+use super::error::{ApiError, JobProblems, Problem, ResultProblems};
 use super::jobs::find;
 use super::model::{JobId, JobRecord, Status};
 use super::queue::Queue;
@@ -157,11 +157,7 @@ struct SvgQuery {
         (status = 200, description = "The SVG (layered - albedo, shade with \
             `mix-blend-mode:multiply`, light with `plus-lighter` - or flattened).",
             body = String, content_type = "image/svg+xml"),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
     ),
 )]
 async fn svg(
@@ -188,11 +184,7 @@ async fn svg(
     params(("id" = JobId, Path)),
     responses(
         (status = 200, description = "The PDF.", body = Binary, content_type = "application/pdf"),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
         (status = 500, response = Problem),
     ),
 )]
@@ -234,11 +226,7 @@ async fn flat_file(state: &AppState, id: String, kind: FileKind) -> Result<Respo
     params(("id" = JobId, Path), ("file" = inline(LayerFile), Path)),
     responses(
         (status = 200, description = "The layer's SVG.", body = String, content_type = "image/svg+xml"),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
     ),
 )]
 async fn layer(
@@ -264,11 +252,7 @@ async fn layer(
     params(("id" = JobId, Path)),
     responses(
         (status = 200, description = "The scene.", body = SceneJson),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
     ),
 )]
 async fn scene(
@@ -303,11 +287,7 @@ struct PngQuery {
             over `--max-pixels`: 413 `too-many-pixels`.")),
     responses(
         (status = 200, description = "The PNG.", body = Binary, content_type = "image/png"),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 409, response = Problem),
-        (status = 410, response = Problem),
+        ResultProblems,
         (status = 413, response = Problem),
         (status = 422, response = Problem),
         (status = 500, response = Problem),
@@ -369,10 +349,7 @@ pub(super) fn stored_scene(queue: &Queue, job: &str, prefix: &str) -> Result<Sce
     params(("id" = JobId, Path)),
     responses(
         (status = 200, description = "The previews, in stage order.", body = PreviewList),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 410, response = Problem),
+        JobProblems,
     ),
 )]
 async fn previews(
@@ -402,10 +379,7 @@ async fn previews(
         example = "00-input.png", description = "`<name>.png` for a name listed by `/previews`.")),
     responses(
         (status = 200, description = "The preview image.", body = Binary, content_type = "image/png"),
-        (status = 400, response = Problem),
-        (status = 401, response = Problem),
-        (status = 404, response = Problem),
-        (status = 410, response = Problem),
+        JobProblems,
     ),
 )]
 async fn preview(
