@@ -389,28 +389,14 @@ mod tests {
 
     fn job(client: &str, priority: Priority, created_at: u64) -> JobRecord {
         JobRecord {
-            id: new_job_id(),
-            owner: None,
-            client: client.to_owned(),
-            priority,
-            status: Status::Queued,
             created_at,
-            started_at: None,
-            completed_at: None,
-            expires_at: None,
-            params: Default::default(),
-            inputs: InputManifest::default(),
-            mode: None,
-            progress: None,
-            previews: Vec::new(),
-            cancel_reason: None,
-            cancel_requested: false,
-            error: None,
-            idempotency: None,
-            data_removed: false,
-            checksums: Default::default(),
-            webhook: None,
-            attempts: 0,
+            ..JobRecord::queued(
+                new_job_id(),
+                client.to_owned(),
+                priority,
+                Default::default(),
+                InputManifest::default(),
+            )
         }
     }
 

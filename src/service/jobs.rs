@@ -16,7 +16,7 @@ use super::auth::{Client, Owner};
 use super::error::{ApiError, JobProblems, Problem, TooManyRequests, Unavailable};
 use super::model::{
     Idempotency, IdempotentReplayed, InputManifest, JobEvent, JobId, JobList, JobRecord, JobView,
-    Status, is_job_id, new_job_id, now_ms,
+    Status, is_job_id, new_job_id,
 };
 use super::queue::Admission;
 use super::runner::JobEntry;
@@ -228,28 +228,16 @@ async fn create(
             .map(|(i, bytes)| (format!("input/mask-{i}"), bytes)),
     );
     let record = JobRecord {
-        id,
         owner: owner.0.clone(),
-        client,
-        priority: submission.priority.unwrap_or_default(),
-        status: Status::Queued,
-        created_at: now_ms(),
-        started_at: None,
-        completed_at: None,
-        expires_at: None,
-        params: submission.params,
-        inputs: manifest,
-        mode: None,
-        progress: None,
-        previews: Vec::new(),
-        cancel_reason: None,
-        cancel_requested: false,
-        error: None,
         idempotency: key.map(|key| Idempotency { key, fingerprint }),
-        data_removed: false,
-        checksums: Default::default(),
         webhook,
-        attempts: 0,
+        ..JobRecord::queued(
+            id,
+            client,
+            submission.priority.unwrap_or_default(),
+            submission.params,
+            manifest,
+        )
     };
     let queue = state.queue.clone();
     let admission = tokio::task::spawn_blocking(move || queue.admit(record, inputs))

@@ -235,6 +235,41 @@ pub struct JobRecord {
 }
 
 impl JobRecord {
+    /// A job just submitted, waiting in the queue; the submission's other details (owner,
+    /// idempotency, webhook) are set on the result.
+    pub fn queued(
+        id: String,
+        client: String,
+        priority: Priority,
+        params: Params,
+        inputs: InputManifest,
+    ) -> Self {
+        Self {
+            id,
+            owner: None,
+            client,
+            priority,
+            status: Status::Queued,
+            created_at: now_ms(),
+            started_at: None,
+            completed_at: None,
+            expires_at: None,
+            params,
+            inputs,
+            mode: None,
+            progress: None,
+            previews: Vec::new(),
+            cancel_reason: None,
+            cancel_requested: false,
+            error: None,
+            idempotency: None,
+            data_removed: false,
+            checksums: Default::default(),
+            webhook: None,
+            attempts: 0,
+        }
+    }
+
     /// Puts the job back in the queue for a re-run: what the last run produced is forgotten.
     pub fn requeue(&mut self) {
         self.status = Status::Queued;

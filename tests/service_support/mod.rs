@@ -56,8 +56,9 @@ const BUCKET_PREFIX: &str = "covec";
 /// What every server on a data directory gets from its shared backend.
 struct BackendArgs {
     data_dir: PathBuf,
-    /// `--database-url URL`, then `--object-store URL` with a bucket.
-    args: Vec<String>,
+    database_url: String,
+    /// `--object-store`'s URL: the data directory's bucket, if its files are in one.
+    object_store: Option<String>,
     /// The bucket's server's AWS_* variables.
     env: Vec<(String, String)>,
 }
@@ -79,7 +80,7 @@ impl DataDir {
         let mut dir = Self::plain(name);
         if std::env::var("COVEC_TEST_BACKEND").as_deref() == Ok("postgres") {
             let database = postgres::Postgres::start();
-            let mut args = vec!["--database-url".to_owned(), database.url.clone()];
+            let mut object_store = None;
             let mut env = Vec::new();
             let server = s3::S3Server::shared().filter(|_| files == Files::Backend);
             let bucket = server.map(|server| {
@@ -92,16 +93,14 @@ impl DataDir {
                 server
                     .curl("PUT", &format!("/{name}"), None)
                     .expect("creating the bucket");
-                args.extend([
-                    "--object-store".to_owned(),
-                    format!("s3://{name}/{BUCKET_PREFIX}"),
-                ]);
+                object_store = Some(format!("s3://{name}/{BUCKET_PREFIX}"));
                 env = server.env();
                 Bucket { server, name }
             });
             lock(&BACKENDS).push(BackendArgs {
                 data_dir: dir.0.clone(),
-                args,
+                database_url: database.url.clone(),
+                object_store,
                 env,
             });
             dir.1 = Some(Box::new(Shared { database, bucket }));
@@ -242,9 +241,15 @@ fn backend_args(data_dir: &Path, own_store: bool) -> (Vec<String>, Vec<(String, 
     lock(&BACKENDS)
         .iter()
         .find(|backend| backend.data_dir == data_dir)
-        .map(|backend| match own_store {
-            true => (backend.args[..2].to_vec(), Vec::new()),
-            false => (backend.args.clone(), backend.env.clone()),
+        .map(|backend| {
+            let mut args = vec!["--database-url".to_owned(), backend.database_url.clone()];
+            match (&backend.object_store, own_store) {
+                (Some(store), false) => {
+                    args.extend(["--object-store".to_owned(), store.clone()]);
+                    (args, backend.env.clone())
+                }
+                _ => (args, Vec::new()),
+            }
         })
         .unwrap_or_default()
 }
