@@ -46,10 +46,12 @@ pub fn trace_outer_boundary(start: (i64, i64), inside: impl Fn(i64, i64) -> bool
     points
 }
 
-/// Douglas-Peucker simplification of a closed polygon: every dropped vertex lies within
-/// `tolerance` of the kept polygon. Keeps at least 3 vertices when the input has 3 that are
+/// Douglas-Peucker simplification of a closed polygon: every dropped vertex `p` lies within
+/// `tolerance(p)` of the kept polygon (a tolerance of its own at each vertex lets an outline be
+/// coarser where it matters less). Keeps at least 3 vertices when the input has 3 that are
 /// not all the same point.
-pub fn simplify_closed(points: &[Point], tolerance: f32) -> Vec<Point> {
+pub fn simplify_closed(points: &[Point], tolerance: impl Fn(Point) -> f32) -> Vec<Point> {
+    let tolerances: Vec<f32> = points.iter().map(|&p| tolerance(p)).collect();
     let n = points.len();
     if n <= 3 {
         return points.to_vec();
@@ -69,8 +71,8 @@ pub fn simplify_closed(points: &[Point], tolerance: f32) -> Vec<Point> {
     let mut keep = vec![false; n];
     keep[a] = true;
     keep[b] = true;
-    simplify_chain(points, a, b, tolerance, &mut keep);
-    simplify_chain(points, b, a, tolerance, &mut keep);
+    simplify_chain(points, a, b, &tolerances, &mut keep);
+    simplify_chain(points, b, a, &tolerances, &mut keep);
     if keep.iter().filter(|&&k| k).count() < 3 {
         // A sliver: keep the vertex farthest from the a-b line to make a triangle.
         let far = (0..n)
@@ -90,8 +92,15 @@ pub fn simplify_closed(points: &[Point], tolerance: f32) -> Vec<Point> {
         .collect()
 }
 
-/// Marks the vertices to keep on the chain from `first` to `last` (indices modulo n, going up).
-fn simplify_chain(points: &[Point], first: usize, last: usize, tolerance: f32, keep: &mut [bool]) {
+/// Marks the vertices to keep on the chain from `first` to `last` (indices modulo n, going up):
+/// the vertex farthest out of its tolerance, while one is.
+fn simplify_chain(
+    points: &[Point],
+    first: usize,
+    last: usize,
+    tolerances: &[f32],
+    keep: &mut [bool],
+) {
     let n = points.len();
     let len = (last + n - first) % n;
     let mut stack = vec![(0usize, len)];
@@ -102,12 +111,13 @@ fn simplify_chain(points: &[Point], first: usize, last: usize, tolerance: f32, k
         let (p, q) = (points[(first + lo) % n], points[(first + hi) % n]);
         let mut worst = (lo, -1.0f32);
         for k in lo + 1..hi {
-            let d = segment_distance(points[(first + k) % n], p, q);
+            let i = (first + k) % n;
+            let d = segment_distance(points[i], p, q) / tolerances[i];
             if d > worst.1 {
                 worst = (k, d);
             }
         }
-        if worst.1 > tolerance {
+        if worst.1 > 1.0 {
             keep[(first + worst.0) % n] = true;
             stack.push((lo, worst.0));
             stack.push((worst.0, hi));
@@ -165,7 +175,7 @@ mod tests {
         let pts = trace_outer_boundary((1, 1), |x, y| (1..6).contains(&x) && (1..4).contains(&y));
         assert_eq!(pts.len(), 2 * (5 + 3));
         // Edge midpoints cut each corner by a 0.5-px chamfer: 5×3 − 4 × 1/8.
-        let simple = simplify_closed(&pts, 0.1);
+        let simple = simplify_closed(&pts, |_| 0.1);
         assert_eq!(simple.len(), 8, "{simple:?}");
         assert_eq!(signed_area2(&simple), 2.0 * 14.5);
     }
@@ -175,5 +185,24 @@ mod tests {
         // Two pixels touching at a corner: tracing the first must not walk around the second.
         let pts = trace_outer_boundary((0, 0), |x, y| (x, y) == (0, 0) || (x, y) == (1, 1));
         assert_eq!(pts.len(), 4);
+    }
+
+    #[test]
+    fn each_vertex_keeps_to_its_own_tolerance() {
+        // A disc of radius 12: coarse on its left half, fine on its right.
+        let inside = |x: i64, y: i64| (x - 20).pow(2) + (y - 20).pow(2) <= 144;
+        let pts = trace_outer_boundary((20, 8), inside);
+        let tolerance = |p: Point| if p.x < 20.5 { 3.0 } else { 0.3 };
+        let simple = simplify_closed(&pts, tolerance);
+        let n = simple.len();
+        for &p in &pts {
+            let nearest = (0..n)
+                .map(|i| segment_distance(p, simple[i], simple[(i + 1) % n]))
+                .fold(f32::INFINITY, f32::min);
+            assert!(nearest <= tolerance(p) + 1e-5, "{p:?} is {nearest} away");
+        }
+        let left = simple.iter().filter(|p| p.x < 20.0).count();
+        let right = simple.iter().filter(|p| p.x > 21.0).count();
+        assert!(2 * left < right, "left {left}, right {right}: {simple:?}");
     }
 }
