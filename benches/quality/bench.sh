@@ -23,6 +23,11 @@ for c, n in [("faces", "face_hopper"), ("faces", "face_kodim04"), ("scenes", "sc
     Image.open(f"{bench}/{c}/{n}.png").convert("RGB").resize((512, 512), Image.LANCZOS).save(f"{out}/set512/{n}_512.png")
 PY
 fi
+# Cubic segments in the d attributes on stdin (M, then C/c only, as covec and VTracer write;
+# one C may carry several cubics: six numbers each).
+count_cubics='import re, sys
+print(sum((len(re.findall(r"[-+]?(?:\d+\.?\d*|\.\d+)", sub)) - 2) // 6
+          for sub in re.split(r"[Mm]", sys.stdin.read())[1:]))'
 measure() {  # measure NAME BIN IMAGES... -> OUT/NAME.tsv: image, paths, cubic segments, mse, gmsd
   local name=$1 bin=$2; shift 2; mkdir -p "$out/$name"; : > "$out/$name.tsv"
   for img in "$@"; do
@@ -32,7 +37,7 @@ measure() {  # measure NAME BIN IMAGES... -> OUT/NAME.tsv: image, paths, cubic s
     read -r w h < <("$py" -c "from PIL import Image; print(*Image.open('$img').size)")
     resvg -w "$w" -h "$h" "$out/$name/$n.svg" "$out/$name/$n.png"
     p=$(grep -o '<path' "$out/$name/$n.svg" | wc -l)
-    s=$(grep -o ' d="[^"]*"' "$out/$name/$n.svg" | grep -o '[Cc]' | wc -l)
+    s=$(grep -o ' d="[^"]*"' "$out/$name/$n.svg" | "$py" -c "$count_cubics")
     printf '%s\t%s\t%s\t%s\n' "$n" "$p" "$s" "$("$py" "$here/metrics.py" "$img" "$out/$name/$n.png" | tr ' ' '\t')" >> "$out/$name.tsv"
   done
 }
