@@ -118,9 +118,8 @@ pub struct OutlineTolerance {
     edge: f32,
     width: usize,
     height: usize,
-    /// Per pixel, the largest luma gradient in its 3×3 neighbourhood (an outline traced a
-    /// pixel off the edge still sees it).
-    contrast: Vec<f32>,
+    /// Luma gradient magnitude per pixel, per `edge` pixels.
+    gradient: Vec<f32>,
 }
 
 impl OutlineTolerance {
@@ -129,7 +128,7 @@ impl OutlineTolerance {
         let edge = simplify_tolerance(w, h);
         let luma = Grey::luma(image);
         let at = |x: usize, y: usize| (luma.data[y * w + x] / 255.0) as f32;
-        let gradient: Vec<f32> = (0..w * h)
+        let gradient = (0..w * h)
             .map(|i| {
                 let (x, y) = (i % w, i / w);
                 let gx = 0.5 * (at((x + 1).min(w - 1), y) - at(x.saturating_sub(1), y));
@@ -137,32 +136,22 @@ impl OutlineTolerance {
                 edge * gx.hypot(gy)
             })
             .collect();
-        let contrast = (0..w * h)
-            .map(|i| {
-                let (x, y) = (i % w, i / w);
-                let rows = y.saturating_sub(1)..=(y + 1).min(h - 1);
-                rows.flat_map(|yy| {
-                    (x.saturating_sub(1)..=(x + 1).min(w - 1)).map(move |xx| yy * w + xx)
-                })
-                .map(|j| gradient[j])
-                .fold(0.0, f32::max)
-            })
-            .collect();
         Self {
             edge,
             width: w,
             height: h,
-            contrast,
+            gradient,
         }
     }
 
-    /// The tolerance at an outline point (pixel-edge midpoints: the 2×2 pixels around it).
+    /// The tolerance at an outline point (a pixel-edge midpoint), from the largest gradient in
+    /// the 4×4 pixels around it: an outline traced a pixel off the edge still sees the edge.
     pub fn at(&self, p: Point) -> f32 {
         let (x0, y0) = ((p.x - 0.5).floor() as i64, (p.y - 0.5).floor() as i64);
         let mut contrast = 0.0f32;
-        for y in y0.max(0)..=(y0 + 1).min(self.height as i64 - 1) {
-            for x in x0.max(0)..=(x0 + 1).min(self.width as i64 - 1) {
-                contrast = contrast.max(self.contrast[y as usize * self.width + x as usize]);
+        for y in (y0 - 1).max(0)..=(y0 + 2).min(self.height as i64 - 1) {
+            for x in (x0 - 1).max(0)..=(x0 + 2).min(self.width as i64 - 1) {
+                contrast = contrast.max(self.gradient[y as usize * self.width + x as usize]);
             }
         }
         let flatness = 1.0 - (contrast / EDGE_CONTRAST).min(1.0);
