@@ -12,7 +12,7 @@
 use super::coarse::{Plateau, PlateauSettings, halve_mask};
 use super::init::LayerGroups;
 use super::params::{Error, ResolvedMode};
-use super::segments::{SegmentPull, SplitLayer, SplitPlan, split_most_pulled};
+use super::segments::{SegmentPull, SplitLayer, SplitPlan};
 use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo, hold_albedo_base};
 use crate::decompose::mask::Mask;
 use crate::optim::loss::{mse, overlap_penalty};
@@ -187,7 +187,8 @@ pub(crate) fn optimise_reconstruction(
     let [mut adam_albedo, mut adam_illum] = layer_adams(settings, w, h);
     let mut plateau = Plateau::new(settings.plateau);
     let (mut grads_a, mut grads_i) = (Vec::new(), Vec::new());
-    let (mut pull_a, mut pull_i) = (SegmentPull::default(), SegmentPull::default());
+    // The illumination layer's pull: only it splits (see `super::segments`).
+    let mut pull = SegmentPull::default();
     let held = keep.map(|k| {
         (
             k.keep.albedo_groups(scene, k.seed),
@@ -227,23 +228,15 @@ pub(crate) fn optimise_reconstruction(
         hold_albedo(&mut grads_a, mode);
         adam_albedo.step(&mut scene.albedo.paths, &grads_a);
         adam_illum.step(&mut scene.shade.paths, &grads_i);
-        pull_a.add(&scene.albedo.paths, &grads_a);
-        pull_i.add(&scene.shade.paths, &grads_i);
+        pull.add(&scene.shade.paths, &grads_i);
         let due = split.due(it + 1, span.count, scene.segment_count());
         if due > 0 {
-            let layers = &mut [
-                SplitLayer {
-                    paths: &mut scene.albedo.paths,
-                    pull: &mut pull_a,
-                    adam: &mut adam_albedo,
-                },
-                SplitLayer {
-                    paths: &mut scene.shade.paths,
-                    pull: &mut pull_i,
-                    adam: &mut adam_illum,
-                },
-            ];
-            split_most_pulled(layers, due);
+            SplitLayer {
+                paths: &mut scene.shade.paths,
+                pull: &mut pull,
+                adam: &mut adam_illum,
+            }
+            .split_most_pulled(due);
         }
         stage.iteration(span.start + it + 1, span.total, Some(loss))?;
     }
