@@ -67,7 +67,7 @@ impl SplitPlan {
     /// holding `current`: an equal share of what is left at each split still to come, none in
     /// the last [`SPLIT_EVERY`] iterations (the new points need them).
     pub fn due(&self, done: u32, count: u32, current: usize) -> usize {
-        if done == 0 || done % SPLIT_EVERY != 0 || done >= count {
+        if done == 0 || !done.is_multiple_of(SPLIT_EVERY) || done >= count {
             return 0;
         }
         let splits_left = ((count - 1) / SPLIT_EVERY - done / SPLIT_EVERY + 1) as usize;
@@ -127,7 +127,7 @@ impl SplitLayer<'_> {
         ranked.truncate(count);
         // From each path's last segment backwards, so that the indices still to split stay
         // valid.
-        ranked.sort_by(|a, b| (b.1, b.2).cmp(&(a.1, a.2)));
+        ranked.sort_by_key(|&(_, p, k)| std::cmp::Reverse((p, k)));
         for (_, p, k) in ranked {
             split_segment(&mut self.paths[p], k);
             self.adam.split_segment(p, k);
