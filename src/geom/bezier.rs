@@ -33,6 +33,16 @@ pub fn eval(c: &[Point; 4], t: f32) -> Point {
     )
 }
 
+/// The cubic's two halves, `t ∈ [0, ½]` and `[½, 1]` (de Casteljau): together they trace the
+/// same curve, so splitting a segment changes no pixel.
+pub fn split_half(c: &[Point; 4]) -> [[Point; 4]; 2] {
+    let mid = |u: Point, v: Point| Point::new(0.5 * (u.x + v.x), 0.5 * (u.y + v.y));
+    let (ab, bc, cd) = (mid(c[0], c[1]), mid(c[1], c[2]), mid(c[2], c[3]));
+    let (abc, bcd) = (mid(ab, bc), mid(bc, cd));
+    let centre = mid(abc, bcd);
+    [[c[0], ab, abc, centre], [centre, bcd, cd, c[3]]]
+}
+
 /// The number of lines `n` such that the polyline through `B(k/n)`, `k = 0..=n`, stays within
 /// `tolerance` pixels of the cubic, clamped to `1..=MAX_LINES_PER_CUBIC`.
 ///
@@ -73,6 +83,27 @@ pub fn flatten_into(c: &[Point; 4], n: u32, out: &mut Vec<Point>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_halves_trace_the_whole() {
+        let c = [
+            Point::new(0.0, 0.0),
+            Point::new(3.0, 9.0),
+            Point::new(7.0, -4.0),
+            Point::new(10.0, 2.0),
+        ];
+        let [first, second] = split_half(&c);
+        for i in 0..=10 {
+            let t = i as f32 / 10.0;
+            let whole = eval(&c, t);
+            let half = if t <= 0.5 {
+                eval(&first, 2.0 * t)
+            } else {
+                eval(&second, 2.0 * t - 1.0)
+            };
+            assert!((whole.x - half.x).abs() < 1e-4 && (whole.y - half.y).abs() < 1e-4);
+        }
+    }
 
     fn arc() -> [Point; 4] {
         // A quarter circle of radius 10 (the usual 4-cubic circle's kappa).

@@ -174,6 +174,17 @@ impl Adam {
     }
 }
 
+impl Adam {
+    /// Keeps path `path`'s moments in step with a split of its segment `k` into two (the new
+    /// points, the middle end point and its two handles, start with zero moments).
+    pub fn split_segment(&mut self, path: usize, k: usize) {
+        if let Some(m) = self.moments.get_mut(path) {
+            let at = (3 * k + 3).min(m.points.len());
+            m.points.splice(at..at, [[0.0; 4]; 3]);
+        }
+    }
+}
+
 /// Updates one parameter's moments with gradient `g` and returns the step to subtract.
 fn adam_update(s: &GroupSettings, t: i32, m: &mut f32, v: &mut f32, g: f32) -> f32 {
     let g = if g.is_finite() { g } else { 0.0 };

@@ -12,6 +12,9 @@
 
 use super::decompose::Decomposition;
 use super::params::{Params, ResolvedMode};
+use super::segments::{
+    INIT_SEGMENTS_PER_PATH, MAX_TOLERANCE_SCALE, TOLERANCE_STEP, refinement_reserve,
+};
 use crate::decompose::binarize::binarize;
 use crate::decompose::mask::Mask;
 use crate::decompose::organize::organize;
@@ -100,21 +103,24 @@ pub fn simplify_tolerance(width: usize, height: usize) -> f32 {
 
 /// How many times [`simplify_tolerance`] an outline may stray where the image is flat. There a
 /// straighter outline costs the loss little, and the optimiser moves it anyway; on an edge it
-/// would cost the edge. With [`EDGE_CONTRAST`], on the 16 bench photos at 64 paths: 24.4 →
-/// 19.2 cubic segments per path, MSE −1.1%, GMSD +0.2% (README, issue 12, for the settings
-/// tried).
-pub const FLAT_TOLERANCE_FACTOR: f32 = 8.0;
+/// would cost the edge. Alone, with [`EDGE_CONTRAST`] 0.07 and 8×, on the 16 bench photos at 64
+/// paths: 24.4 → 19.2 cubic segments per path, MSE −1.1%; under the segment budget
+/// ([`super::segments`]) 0.1 and 10× do better (README, issue 12, for the settings tried).
+pub const FLAT_TOLERANCE_FACTOR: f32 = 10.0;
 
 /// Luma gradient from which an outline point counts as on an edge and keeps the edge
 /// tolerance; below it the tolerance rises linearly to [`FLAT_TOLERANCE_FACTOR`] times at a
 /// flat point. Central differences of luma in [0, 1], per [`simplify_tolerance`] pixels (per
 /// pixel up to 256 px of long side), so that an image at twice the size gets the same outlines
 /// (per pixel, 512² upscaled bench photos lost 2.8% MSE).
-pub const EDGE_CONTRAST: f32 = 0.07;
+pub const EDGE_CONTRAST: f32 = 0.1;
 
 /// The init outlines' tolerance at each point: [`simplify_tolerance`] on an edge of the image,
-/// up to [`FLAT_TOLERANCE_FACTOR`] times that where the image is flat.
+/// up to [`FLAT_TOLERANCE_FACTOR`] times that where the image is flat; all of it scaled up as
+/// far as the segment budget needs ([`super::segments`]).
 pub struct OutlineTolerance {
+    /// Factor on every point's tolerance, raised to fit the segment budget.
+    scale: f32,
     edge: f32,
     width: usize,
     height: usize,
@@ -137,6 +143,7 @@ impl OutlineTolerance {
             })
             .collect();
         Self {
+            scale: 1.0,
             edge,
             width: w,
             height: h,
@@ -155,7 +162,7 @@ impl OutlineTolerance {
             }
         }
         let flatness = 1.0 - (contrast / EDGE_CONTRAST).min(1.0);
-        self.edge * (1.0 + (FLAT_TOLERANCE_FACTOR - 1.0) * flatness)
+        self.scale * self.edge * (1.0 + (FLAT_TOLERANCE_FACTOR - 1.0) * flatness)
     }
 }
 
@@ -176,7 +183,6 @@ pub(crate) fn run(
     let (w, h) = (target.width, target.height);
     let budget = Budget::new(params.paths as usize, mode);
     let min_area = min_mask_area(w, h);
-    let mut scene = Scene::new(w as u32, h as u32, original.0, original.1);
 
     let mut albedo_masks = select(&candidates, budget.albedo, true, w, h);
     let mut illumination_masks = Vec::new();
@@ -199,21 +205,34 @@ pub(crate) fn run(
         }
     }
 
-    let tolerance = OutlineTolerance::new(&target);
-    let albedo = build_layer(
-        LayerKind::Albedo,
-        &albedo_masks,
-        &mut scene,
-        &tolerance,
-        |visible| mean_colour(&albedo_map, visible),
-    );
-    let illumination = build_layer(
-        LayerKind::Shade,
-        &illumination_masks,
-        &mut scene,
-        &tolerance,
-        |visible| mean_ratio(&target, &albedo_map, visible).map(|c| c.map(|v| v.clamp(0.0, 1.0))),
-    );
+    // The outlines at the smallest tolerance (a power of TOLERANCE_STEP) that fits the budget.
+    let mut tolerance = OutlineTolerance::new(&target);
+    let budget_segments = (INIT_SEGMENTS_PER_PATH * params.paths as f32) as usize;
+    let (mut scene, albedo, illumination) = loop {
+        let mut scene = Scene::new(w as u32, h as u32, original.0, original.1);
+        let albedo = build_layer(
+            LayerKind::Albedo,
+            &albedo_masks,
+            &mut scene,
+            &tolerance,
+            |visible| mean_colour(&albedo_map, visible),
+        );
+        let illumination = build_layer(
+            LayerKind::Shade,
+            &illumination_masks,
+            &mut scene,
+            &tolerance,
+            |visible| {
+                mean_ratio(&target, &albedo_map, visible).map(|c| c.map(|v| v.clamp(0.0, 1.0)))
+            },
+        );
+        let segments =
+            scene.segment_count() + refinement_reserve(params.paths as usize, scene.path_count());
+        if segments <= budget_segments || tolerance.scale > MAX_TOLERANCE_SCALE {
+            break (scene, albedo, illumination);
+        }
+        tolerance.scale *= TOLERANCE_STEP;
+    };
     if mode == ResolvedMode::Photo {
         fit_illumination_fills(&mut scene, &target, &albedo, &illumination);
     }

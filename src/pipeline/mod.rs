@@ -15,6 +15,7 @@ pub mod params;
 pub(crate) mod polish;
 pub(crate) mod refine;
 pub(crate) mod regions;
+pub(crate) mod segments;
 pub(crate) mod split;
 pub mod stage;
 pub(crate) mod structure;

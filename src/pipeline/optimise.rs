@@ -2,19 +2,23 @@
 //! [`super::stage::SIMPLE_STAGES`] order them: photo: structure → reconstruct → refine
 //! (illumination) → split → polish; simple: structure → reconstruct → refine (albedo) → polish.
 //!
-//! The structure stage, the first part of the reconstruction and the first refinement rounds run
-//! on a half-size copy of the scene (see [`super::coarse`]); previews are made at full size.
+//! The structure stage, the first part of the reconstruction, the first refinement rounds and the
+//! first part of the polish run on a half-size copy of the scene (see [`super::coarse`]);
+//! previews are made at full size. The reconstruction splits segments up to the segment budget
+//! ([`super::segments`]).
 
 use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask};
 use super::init::InitState;
 use super::params::{Error, Params, ResolvedMode};
 use super::polish::{self, PolishSettings};
 use super::refine::{Growth, RefinePlan, RefineSettings, refine};
+use super::segments::SplitPlan;
 use super::split::{SplitReport, split_layers};
 use super::stage::{Canvas, IterationSpan, StageKind, StageRun};
 use super::structure::{
-    Keep, KeepRun, KeepSettings, MaskGroup, Scratch, StructureRun, StructureSettings,
-    optimise_reconstruction, optimise_structure, preview_two_layers, reconstruction_loss,
+    Keep, KeepRun, KeepSettings, MaskGroup, ReconstructionRun, Scratch, StructureRun,
+    StructureSettings, optimise_reconstruction, optimise_structure, preview_two_layers,
+    reconstruction_loss,
 };
 use crate::render::Image;
 use crate::scene::{LayerKind, Scene};
@@ -205,39 +209,29 @@ impl<'a> Optimisation<'a> {
         } else {
             0
         };
-        let (settings, mode) = (&self.settings.structure, self.mode);
+        let split = SplitPlan::new(self.params.paths as usize, self.scene.path_count());
         let keep = self.keep.take();
         let (full, half) = keep_runs(&keep, self.params.seed);
+        let run = |start: u32, count: u32, keep| ReconstructionRun {
+            span: IterationSpan {
+                start,
+                count,
+                total,
+            },
+            settings: &self.settings.structure,
+            keep,
+            mode: self.mode,
+            split,
+        };
+        let (coarse_run, fine_run) = (
+            run(0, coarse_count, half.as_ref()),
+            run(coarse_count, total - coarse_count, full.as_ref()),
+        );
         let coarse = self.coarse(|small, small_target| {
-            optimise_reconstruction(
-                small,
-                small_target,
-                IterationSpan {
-                    start: 0,
-                    count: coarse_count,
-                    total,
-                },
-                settings,
-                half.as_ref(),
-                mode,
-                stage,
-            )
+            optimise_reconstruction(small, small_target, &coarse_run, stage)
         });
-        let fine = coarse.and_then(|_| {
-            optimise_reconstruction(
-                &mut self.scene,
-                &self.target,
-                IterationSpan {
-                    start: coarse_count,
-                    count: total - coarse_count,
-                    total,
-                },
-                settings,
-                full.as_ref(),
-                mode,
-                stage,
-            )
-        });
+        let fine = coarse
+            .and_then(|_| optimise_reconstruction(&mut self.scene, &self.target, &fine_run, stage));
         self.keep = keep;
         fine?;
         let after = if total > 0 {
@@ -319,18 +313,45 @@ impl<'a> Optimisation<'a> {
     }
 
     fn polish(&mut self, stage: &StageRun) -> Result<(), Error> {
-        let run = self.keep.as_ref().map(|[full, _]| KeepRun {
-            keep: full,
-            seed: self.params.seed,
+        let total = self.params.iterations.polish;
+        let coarse_count = if self.small_target.is_some() {
+            ((total as f32 * self.settings.coarse.polish_share).round() as u32).min(total)
+        } else {
+            0
+        };
+        // The stage's loss before: the SVG model at full size, before any coarse iteration.
+        polish::into_range(&mut self.scene);
+        let before = polish::model_loss(&mut self.canvas, &self.scene, &self.target);
+        let keep = self.keep.take();
+        let (full, half) = keep_runs(&keep, self.params.seed);
+        let (settings, structure) = (&self.settings.polish, &self.settings.structure);
+        let span = |start: u32, count: u32| IterationSpan {
+            start,
+            count,
+            total,
+        };
+        let coarse = self.coarse(|small, small_target| {
+            polish::polish(
+                small,
+                small_target,
+                span(0, coarse_count),
+                settings,
+                half.as_ref().map(|r| (r, structure)),
+                stage,
+            )
         });
-        let [before, after] = polish::polish(
-            &mut self.scene,
-            &self.target,
-            self.params.iterations.polish,
-            &self.settings.polish,
-            run.as_ref().map(|r| (r, &self.settings.structure)),
-            stage,
-        )?;
+        let fine = coarse.and_then(|_| {
+            polish::polish(
+                &mut self.scene,
+                &self.target,
+                span(coarse_count, total - coarse_count),
+                settings,
+                full.as_ref().map(|r| (r, structure)),
+                stage,
+            )
+        });
+        self.keep = keep;
+        let [_, after] = fine?;
         self.record(stage, before, after);
         Ok(())
     }

@@ -97,9 +97,10 @@ pub struct Iterations {
     pub refine_rounds: u32,
     /// Iterations per refinement round. Default 100.
     pub refine: u32,
-    /// Final joint polish under the exact SVG model. Default 65 (50 before issue 11: with a
-    /// flat albedo map more is left to fit jointly, and 65 keeps the bench photos within 3% of
-    /// their earlier error).
+    /// Final joint polish under the exact SVG model. Default 160, of which the first 3/4 run at
+    /// half size on images of 128 px and more (`CoarseSettings::polish_share`): 40 at full size
+    /// where there were 65 (50 before issue 11: with a flat albedo map more is left to fit
+    /// jointly; issue 12: the split segments need more of the joint fit).
     pub polish: u32,
 }
 
@@ -110,7 +111,7 @@ impl Default for Iterations {
             reconstruction: 50,
             refine_rounds: 5,
             refine: 100,
-            polish: 65,
+            polish: 160,
         }
     }
 }

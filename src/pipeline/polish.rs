@@ -4,7 +4,7 @@
 
 use super::coarse::{Plateau, PlateauSettings};
 use super::params::Error;
-use super::stage::{Canvas, StageRun, hold_albedo_base};
+use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo_base};
 use super::structure::{KeepRun, StructureSettings, albedo_term, containment_term};
 use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
@@ -30,11 +30,37 @@ impl Default for PolishSettings {
     }
 }
 
-/// Runs up to `iterations` joint steps and returns the MSE of the SVG model before and after.
+/// Files hold [0, 1] values: brings any illumination colour (and every point and opacity) into
+/// its SVG range.
+pub(crate) fn into_range(scene: &mut Scene) {
+    let bounds = Bounds::canvas(scene.width as usize, scene.height as usize, 1.0);
+    for kind in LayerKind::ALL {
+        for path in &mut scene.layer_mut(kind).paths {
+            bounds.project(path);
+        }
+    }
+}
+
+/// The SVG model's MSE against the target.
+pub(crate) fn model_loss(canvas: &mut Canvas, scene: &Scene, target: &Image) -> f32 {
+    let mut layers = [Image::default(), Image::default(), Image::default()];
+    let (mut composite, mut d_composite) = (Image::default(), Image::default());
+    render_all(
+        canvas,
+        scene,
+        target,
+        &mut layers,
+        &mut composite,
+        &mut d_composite,
+    )
+}
+
+/// Runs up to the span's iterations of joint steps (from [`into_range`]) and returns the MSE of
+/// the SVG model before and after. A coarse part (one that ends early) makes no previews.
 pub(crate) fn polish(
     scene: &mut Scene,
     target: &Image,
-    iterations: u32,
+    span: IterationSpan,
     settings: &PolishSettings,
     keep: Option<(&KeepRun, &StructureSettings)>,
     stage: &StageRun,
@@ -45,12 +71,7 @@ pub(crate) fn polish(
         .iter()
         .map(|_| Adam::new(settings.adam, Bounds::canvas(w, h, 1.0)))
         .collect();
-    // Files hold [0, 1] values: bring any illumination colour into range first.
-    for kind in LayerKind::ALL {
-        for path in &mut scene.layer_mut(kind).paths {
-            Bounds::canvas(w, h, 1.0).project(path);
-        }
-    }
+    into_range(scene);
     let mut layers = [Image::default(), Image::default(), Image::default()];
     let mut d_layers = [Image::default(), Image::default(), Image::default()];
     let (mut composite, mut d_composite) = (Image::default(), Image::default());
@@ -72,7 +93,7 @@ pub(crate) fn polish(
     });
     let mut loss = initial;
     let mut plateau = Plateau::new(settings.plateau);
-    for it in 0..iterations {
+    for it in 0..span.count {
         if plateau.stop_after(loss) {
             break;
         }
@@ -128,11 +149,13 @@ pub(crate) fn polish(
             &mut composite,
             &mut d_composite,
         );
-        stage.iteration(it + 1, iterations, Some(loss))?;
+        stage.iteration(span.start + it + 1, span.total, Some(loss))?;
     }
-    stage.preview("composite", &composite);
-    for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
-        stage.preview(kind.name(), &layers[k]);
+    if !span.ends_early() {
+        stage.preview("composite", &composite);
+        for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
+            stage.preview(kind.name(), &layers[k]);
+        }
     }
     Ok([initial, loss])
 }

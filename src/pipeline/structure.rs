@@ -12,6 +12,7 @@
 use super::coarse::{Plateau, PlateauSettings, halve_mask};
 use super::init::LayerGroups;
 use super::params::{Error, ResolvedMode};
+use super::segments::{SegmentPull, SplitLayer, SplitPlan};
 use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo, hold_albedo_base};
 use crate::decompose::mask::Mask;
 use crate::optim::loss::{mse, overlap_penalty};
@@ -152,19 +153,33 @@ pub(crate) fn optimise_structure(
     Ok([initial, after])
 }
 
+/// How one part (coarse or fine) of the reconstruction runs.
+pub(crate) struct ReconstructionRun<'a> {
+    pub span: IterationSpan,
+    pub settings: &'a StructureSettings,
+    pub keep: Option<&'a KeepRun<'a>>,
+    pub mode: ResolvedMode,
+    /// Up to where the loop splits segments ([`super::segments`]).
+    pub split: SplitPlan,
+}
+
 /// Runs the span's iterations of the shared reconstruction loss ‖I − R(A)·R(I)‖² on both
-/// layers, one Adam per layer, stopping early once the loss has plateaued. Returns the loss
-/// before and after.
+/// layers, one Adam per layer, stopping early once the loss has plateaued, splitting the
+/// segments the loss pulls hardest as the plan says. Returns the loss before and after.
 /// The albedo layer is held as [`hold_albedo`] says.
 pub(crate) fn optimise_reconstruction(
     scene: &mut Scene,
     target: &Image,
-    span: IterationSpan,
-    settings: &StructureSettings,
-    keep: Option<&KeepRun>,
-    mode: ResolvedMode,
+    run: &ReconstructionRun,
     stage: &StageRun,
 ) -> Result<[f32; 2], Error> {
+    let ReconstructionRun {
+        span,
+        settings,
+        keep,
+        mode,
+        split,
+    } = *run;
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let mut scratch = Scratch::default();
@@ -172,6 +187,8 @@ pub(crate) fn optimise_reconstruction(
     let [mut adam_albedo, mut adam_illum] = layer_adams(settings, w, h);
     let mut plateau = Plateau::new(settings.plateau);
     let (mut grads_a, mut grads_i) = (Vec::new(), Vec::new());
+    // The illumination layer's pull: only it splits (see `super::segments`).
+    let mut pull = SegmentPull::default();
     let held = keep.map(|k| {
         (
             k.keep.albedo_groups(scene, k.seed),
@@ -211,6 +228,16 @@ pub(crate) fn optimise_reconstruction(
         hold_albedo(&mut grads_a, mode);
         adam_albedo.step(&mut scene.albedo.paths, &grads_a);
         adam_illum.step(&mut scene.shade.paths, &grads_i);
+        pull.add(&scene.shade.paths, &grads_i);
+        let due = split.due(it + 1, span.count, scene.segment_count());
+        if due > 0 {
+            SplitLayer {
+                paths: &mut scene.shade.paths,
+                pull: &mut pull,
+                adam: &mut adam_illum,
+            }
+            .split_most_pulled(due);
+        }
         stage.iteration(span.start + it + 1, span.total, Some(loss))?;
     }
     let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);

@@ -34,7 +34,7 @@ pub struct InputLimits {
     /// Largest `params.max_size`. Default 1024.
     pub max_size: u32,
     /// Largest total iteration budget ([`crate::Iterations::total`]). Default 5000 (the defaults
-    /// add up to 650).
+    /// add up to 760).
     pub max_iterations: u64,
     /// Largest total of a job's decoded inputs in bytes (image and albedo at 3 bytes a pixel,
     /// masks at 1, a label map as decoded), counted as they decode. Default 256 MiB: 256 masks
