@@ -208,23 +208,20 @@ pub(crate) fn run(
     // The outlines at the smallest tolerance (a power of TOLERANCE_STEP) that fits the budget.
     let mut tolerance = OutlineTolerance::new(&target);
     let budget_segments = (INIT_SEGMENTS_PER_PATH * params.paths as f32) as usize;
+    let albedo_outlines = outlines(&albedo_masks, w, h, |visible| {
+        mean_colour(&albedo_map, visible)
+    });
+    let illumination_outlines = outlines(&illumination_masks, w, h, |visible| {
+        mean_ratio(&target, &albedo_map, visible).map(|c| c.map(|v| v.clamp(0.0, 1.0)))
+    });
     let (mut scene, albedo, illumination) = loop {
         let mut scene = Scene::new(w as u32, h as u32, original.0, original.1);
-        let albedo = build_layer(
-            LayerKind::Albedo,
-            &albedo_masks,
-            &mut scene,
-            &tolerance,
-            |visible| mean_colour(&albedo_map, visible),
-        );
+        let albedo = build_layer(LayerKind::Albedo, &albedo_outlines, &mut scene, &tolerance);
         let illumination = build_layer(
             LayerKind::Shade,
-            &illumination_masks,
+            &illumination_outlines,
             &mut scene,
             &tolerance,
-            |visible| {
-                mean_ratio(&target, &albedo_map, visible).map(|c| c.map(|v| v.clamp(0.0, 1.0)))
-            },
         );
         let segments =
             scene.segment_count() + refinement_reserve(params.paths as usize, scene.path_count());
@@ -376,41 +373,73 @@ fn visible_parts(groups: &[Vec<Mask>], w: usize, h: usize) -> Vec<Mask> {
         .collect()
 }
 
-/// Paths for the organised masks of one layer, filled by `fill(visible part)`.
+/// One mask of a layer with its fill and its traced outline (`None`: the full canvas), traced
+/// once and simplified at each tolerance the segment budget tries.
+struct Outline<'a> {
+    mask: &'a Mask,
+    colour: [f32; 3],
+    boundary: Option<Vec<Point>>,
+}
+
+/// The outlines of one layer's organised masks, per group, filled by `fill(visible part)`; a
+/// mask with no fill is left out.
+fn outlines<'a>(
+    groups: &'a [Vec<Mask>],
+    w: usize,
+    h: usize,
+    fill: impl Fn(&Mask) -> Option<[f32; 3]>,
+) -> Vec<Vec<Outline<'a>>> {
+    let visible = visible_parts(groups, w, h);
+    let mut k = 0;
+    groups
+        .iter()
+        .map(|group| {
+            group
+                .iter()
+                .filter_map(|mask| {
+                    let part = if visible[k].is_empty() {
+                        mask
+                    } else {
+                        &visible[k]
+                    };
+                    k += 1;
+                    let colour = fill(part).or_else(|| fill(mask))?;
+                    Some(Outline {
+                        mask,
+                        colour,
+                        boundary: (mask.area() != w * h).then(|| mask.outer_boundary()),
+                    })
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Paths for one layer's outlines at `tolerance`.
 fn build_layer(
     layer: LayerKind,
-    groups: &[Vec<Mask>],
+    outlines: &[Vec<Outline>],
     scene: &mut Scene,
     tolerance: &OutlineTolerance,
-    fill: impl Fn(&Mask) -> Option<[f32; 3]>,
 ) -> LayerGroups {
     let (w, h) = (scene.width as usize, scene.height as usize);
-    let visible = visible_parts(groups, w, h);
     let mut out = LayerGroups {
         layer,
         groups: Vec::new(),
     };
-    let mut k = 0;
-    for group in groups {
+    for group in outlines {
         let mut built = Vec::new();
-        for mask in group {
-            let part = if visible[k].is_empty() {
-                mask
-            } else {
-                &visible[k]
-            };
-            k += 1;
-            let Some(colour) = fill(part).or_else(|| fill(mask)) else {
-                continue;
-            };
-            let Some(path) = path_from_mask(mask, |p| tolerance.at(p), colour) else {
+        for outline in group {
+            let boundary = outline.boundary.as_deref();
+            let tolerance = |p| tolerance.at(p);
+            let Some(path) = path_from_outline(boundary, w, h, tolerance, outline.colour) else {
                 continue;
             };
             let paths = &mut scene.layer_mut(layer).paths;
             paths.push(path);
             built.push(MaskedPath {
                 path: paths.len() - 1,
-                mask: mask.clone(),
+                mask: outline.mask.clone(),
             });
         }
         if !built.is_empty() {
@@ -420,18 +449,20 @@ fn build_layer(
     out
 }
 
-/// A closed path around a mask's outer boundary (Douglas-Peucker simplified to `tolerance` at
-/// each point, straight cubics); the full canvas becomes the exact canvas rectangle.
-pub fn path_from_mask(
-    mask: &Mask,
+/// A closed path around a mask's traced outer boundary (Douglas-Peucker simplified to
+/// `tolerance` at each point, straight cubics); `None`, the full `w × h` canvas, becomes the
+/// exact canvas rectangle.
+fn path_from_outline(
+    boundary: Option<&[Point]>,
+    w: usize,
+    h: usize,
     tolerance: impl Fn(Point) -> f32,
     colour: [f32; 3],
 ) -> Option<Path> {
-    let (w, h) = (mask.width(), mask.height());
-    if mask.area() == w * h {
+    let Some(boundary) = boundary else {
         return Some(Path::rect(0.0, 0.0, w as f32, h as f32, colour, 1.0));
-    }
-    let polygon = simplify_closed(&mask.outer_boundary(), tolerance);
+    };
+    let polygon = simplify_closed(boundary, tolerance);
     if polygon.len() < 3 {
         return None;
     }
@@ -523,7 +554,9 @@ mod tests {
         let disc = Mask::from_fn(w, h, |x, y| {
             (x as f32 + 0.5 - 30.0).powi(2) + (y as f32 + 0.5 - 33.0).powi(2) <= 20.0f32.powi(2)
         });
-        let path = path_from_mask(&disc, |_| simplify_tolerance(w, h), [1.0; 3])
+        let boundary = disc.outer_boundary();
+        let tolerance = |_| simplify_tolerance(w, h);
+        let path = path_from_outline(Some(&boundary), w, h, tolerance, [1.0; 3])
             .expect("a disc gives a path");
         assert!(
             path.segment_count() >= 8,
@@ -578,7 +611,7 @@ mod tests {
             (x as f32 + 0.5 - 7.0).powi(2) + (y as f32 + 0.5 - 16.0).powi(2) <= 25.0
         });
         let segments = |tolerance: &dyn Fn(Point) -> f32| {
-            path_from_mask(&disc, tolerance, [1.0; 3])
+            path_from_outline(Some(&disc.outer_boundary()), w, h, tolerance, [1.0; 3])
                 .expect("a disc gives a path")
                 .segment_count()
         };
