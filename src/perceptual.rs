@@ -7,6 +7,7 @@
 //! GNU Octave to 1e-6 (`tests/perceptual_reference.rs`).
 
 use crate::render::Image;
+use rayon::prelude::*;
 
 /// A grey image, values on the 0-255 scale, row-major.
 #[derive(Clone, Debug, PartialEq)]
@@ -120,6 +121,180 @@ pub fn gradient_magnitude(grey: &Grey) -> Grey {
         }
     }
     Grey { data, ..half }
+}
+
+/// GMSD's similarity map made a loss for the optimiser: 1 − its mean (the authors' GMSM), 0
+/// when the gradient magnitudes agree everywhere. GMSD itself, the map's deviation, is no loss:
+/// it falls when good pixels get worse. It runs once per render, so it is built for speed:
+/// the target's magnitudes are kept, values are `f32` in buffers with a zero border (the
+/// reference's zero padding without a branch), and bands of [`BAND_ROWS`] half-size rows run
+/// as rayon tasks. Each band sums alone and the bands in order, so the result does not depend
+/// on the thread count.
+#[derive(Clone, Debug)]
+pub struct GradientSimilarity {
+    width: usize,
+    height: usize,
+    /// The target's magnitudes, [`Padded`] layout.
+    reference: Vec<f32>,
+}
+
+/// Half-size rows per rayon task: a 256² image (128 half rows) makes 4 tasks; smaller bands
+/// cost more in scheduling than they gain.
+const BAND_ROWS: usize = 32;
+
+impl GradientSimilarity {
+    /// Computes the target's gradient magnitudes (half size, as [`gradient_magnitude`]).
+    pub fn new(target: &Image) -> Self {
+        let luma = Padded::half_luma(target);
+        let mut reference = vec![0.0; luma.values.len()];
+        luma.for_each_band(&mut reference, |y, row| {
+            for (x, out) in row.iter_mut().enumerate() {
+                let (gx, gy) = luma.prewitt(&luma.values, luma.index(x, y));
+                *out = (gx * gx + gy * gy).sqrt();
+            }
+        });
+        Self {
+            width: target.width,
+            height: target.height,
+            reference,
+        }
+    }
+
+    /// Adds `weight` × the loss's dLoss/dPred into `grad` and returns `weight` × the loss.
+    ///
+    /// # Panics
+    /// If `pred` or `grad` is not the target's size.
+    pub fn add_loss(&self, pred: &Image, weight: f32, grad: &mut Image) -> f32 {
+        assert!(
+            (pred.width, pred.height, grad.width, grad.height)
+                == (self.width, self.height, self.width, self.height),
+            "images differ in size from the target"
+        );
+        let luma = Padded::half_luma(pred);
+        let n = (luma.width * luma.height).max(1) as f32;
+        let t = GMSD_T as f32;
+        // dLoss/d(gx, gy), interleaved, Padded layout.
+        let mut d_gradients = vec![0.0; 2 * luma.values.len()];
+        let row_len = 2 * luma.stride();
+        let band_sums: Vec<f64> = d_gradients[row_len..row_len * (luma.height + 1)]
+            .par_chunks_mut(row_len * BAND_ROWS)
+            .enumerate()
+            .map(|(band, rows)| {
+                let mut sum = 0.0f64;
+                for (r, row) in rows.chunks_exact_mut(row_len).enumerate() {
+                    let y = band * BAND_ROWS + r;
+                    for x in 0..luma.width {
+                        let i = luma.index(x, y);
+                        let (gx, gy) = luma.prewitt(&luma.values, i);
+                        let (a, b) = (self.reference[i], (gx * gx + gy * gy).sqrt());
+                        let (num, den) = (2.0 * a * b + t, a * a + b * b + t);
+                        sum += f64::from(1.0 - num / den);
+                        if b > 0.0 {
+                            let d_b = (2.0 * b * num - 2.0 * a * den) / (den * den) / n;
+                            row[2 * (x + 1)] = d_b * gx / b;
+                            row[2 * (x + 1) + 1] = d_b * gy / b;
+                        }
+                    }
+                }
+                sum
+            })
+            .collect();
+        // The Prewitt operator's transpose is its negation; each half pixel is a 2×2 block.
+        let scale: [f32; 3] = LUMA.map(|l| -weight * 255.0 / 4.0 * l as f32);
+        let width = self.width;
+        let s = 2 * luma.stride();
+        let column = |j: usize| d_gradients[j - s] + d_gradients[j] + d_gradients[j + s];
+        let across = |j: usize| d_gradients[j - 2] + d_gradients[j] + d_gradients[j + 2];
+        grad.data
+            .par_chunks_mut(3 * width * 2 * BAND_ROWS)
+            .enumerate()
+            .for_each(|(band, rows)| {
+                let mut d_half = vec![0.0; luma.width];
+                for (r, pair) in rows.chunks_mut(3 * width * 2).enumerate() {
+                    let y = band * BAND_ROWS + r;
+                    for (x, d) in d_half.iter_mut().enumerate() {
+                        let i = 2 * luma.index(x, y);
+                        *d = column(i - 2) - column(i + 2) + across(i + 1 - s) - across(i + 1 + s);
+                    }
+                    for row in pair.chunks_mut(3 * width) {
+                        for (x, px) in row.chunks_exact_mut(3).enumerate() {
+                            let d = d_half[x / 2] / 3.0;
+                            for c in 0..3 {
+                                px[c] += scale[c] * d;
+                            }
+                        }
+                    }
+                }
+            });
+        weight * (band_sums.iter().sum::<f64>() / f64::from(n)) as f32
+    }
+}
+
+/// A half-size luma image (0-255, 2×2 block means with zero padding, as `GMSD.m` starts) in a
+/// buffer with a one-value zero border, so the Prewitt operator needs no bounds checks.
+struct Padded {
+    width: usize,
+    height: usize,
+    values: Vec<f32>,
+}
+
+impl Padded {
+    fn half_luma(image: &Image) -> Self {
+        let (width, height) = (image.width.div_ceil(2), image.height.div_ceil(2));
+        let mut out = Self {
+            width,
+            height,
+            values: vec![0.0; (width + 2) * (height + 2)],
+        };
+        let weights: [f32; 3] = LUMA.map(|l| 255.0 / 4.0 * l as f32);
+        let luma = |px: &[f32]| weights[0] * px[0] + weights[1] * px[1] + weights[2] * px[2];
+        let row_of = |y: usize| {
+            (y < image.height).then(|| &image.data[3 * y * image.width..3 * (y + 1) * image.width])
+        };
+        let mut values = std::mem::take(&mut out.values);
+        out.for_each_band(&mut values, |y, row| {
+            for source in [row_of(2 * y), row_of(2 * y + 1)].into_iter().flatten() {
+                for (v, block) in row.iter_mut().zip(source.chunks(6)) {
+                    *v += block.chunks_exact(3).map(luma).sum::<f32>();
+                }
+            }
+        });
+        out.values = values;
+        out
+    }
+
+    fn stride(&self) -> usize {
+        self.width + 2
+    }
+
+    fn index(&self, x: usize, y: usize) -> usize {
+        (y + 1) * self.stride() + x + 1
+    }
+
+    /// Runs `f(y, interior of row y)` over every row of `buffer` (this layout), in parallel
+    /// bands of [`BAND_ROWS`].
+    fn for_each_band(&self, buffer: &mut [f32], f: impl Fn(usize, &mut [f32]) + Sync) {
+        let stride = self.stride();
+        buffer[stride..stride * (self.height + 1)]
+            .par_chunks_mut(stride * BAND_ROWS)
+            .enumerate()
+            .for_each(|(band, rows)| {
+                for (r, row) in rows.chunks_exact_mut(stride).enumerate() {
+                    f(band * BAND_ROWS + r, &mut row[1..=self.width]);
+                }
+            });
+    }
+
+    /// The Prewitt gradient (x, y) at index `i` of `src` (this layout), divided by 3.
+    fn prewitt(&self, src: &[f32], i: usize) -> (f32, f32) {
+        let s = self.stride();
+        let column = |j: usize| src[j - s] + src[j] + src[j + s];
+        let across = |j: usize| src[j - 1] + src[j] + src[j + 1];
+        (
+            (column(i - 1) - column(i + 1)) / 3.0,
+            (across(i - s) - across(i + s)) / 3.0,
+        )
+    }
 }
 
 /// MS-SSIM's per-scale exponents (Wang et al. 2003), finest scale first.
@@ -299,6 +474,54 @@ mod tests {
         }
         let offset = gmsd(&a, &Image::filled(32, 32, [0.25; 3]));
         assert!(gmsd(&edge, &a) > 0.1 && gmsd(&edge, &a) > 2.0 * offset);
+    }
+
+    /// The loss is 1 − the mean of the map [`gmsd`] takes the deviation of, and its gradient
+    /// matches finite differences: odd width (a padded block), 65 half rows (three bands, the
+    /// last short).
+    #[test]
+    fn gradient_similarity_is_the_gmsd_map_mean_with_its_gradient() {
+        let (w, h) = (67, 130);
+        let target = crate::synth::generate(w, h, 4).image;
+        let pred = noisy(&target, 0.2, 3);
+        let similarity = GradientSimilarity::new(&target);
+        let loss = |p: &Image| {
+            let mut grad = Image::filled(w, h, [0.0; 3]);
+            let value = similarity.add_loss(p, 2.0, &mut grad);
+            (f64::from(value), grad)
+        };
+        let (m1, m2) = (
+            gradient_magnitude(&Grey::luma(&target)),
+            gradient_magnitude(&Grey::luma(&pred)),
+        );
+        let map_mean = m1
+            .data
+            .iter()
+            .zip(&m2.data)
+            .map(|(&a, &b)| (2.0 * a * b + GMSD_T) / (a * a + b * b + GMSD_T))
+            .sum::<f64>()
+            / m1.data.len() as f64;
+        let (value, grad) = loss(&pred);
+        assert!(
+            (value - 2.0 * (1.0 - map_mean)).abs() < 1e-5,
+            "{value} {map_mean}"
+        );
+        assert!(loss(&target).0.abs() < 1e-6);
+        let h = 1e-2;
+        for i in (0..pred.data.len()).step_by(37) {
+            let at = |v: f32| {
+                let mut p = pred.clone();
+                p.data[i] = v;
+                loss(&p).0
+            };
+            let v = pred.data[i];
+            let fd = (at(v + h) - at(v - h)) / (2.0 * f64::from(h));
+            let analytic = f64::from(grad.data[i]);
+            assert!(
+                (fd - analytic).abs() < 1e-6 + 0.05 * analytic.abs(),
+                "value {i}: fd {fd} vs analytic {analytic}"
+            );
+        }
     }
 
     #[test]

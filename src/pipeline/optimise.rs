@@ -33,8 +33,9 @@ pub(crate) struct OptimiseSettings {
     pub keep: KeepSettings,
 }
 
-/// The image loss (MSE against the target) at the start and end of one stage: the two-layer
-/// model `R(A)·R(I)` up to the refinement, the SVG model `clamp01(R(A)·R(S) + R(L))` in the polish.
+/// The image loss at the start and end of one stage: the MSE of the two-layer model `R(A)·R(I)`
+/// up to the refinement; in the polish, the MSE of the SVG model `clamp01(R(A)·R(S) + R(L))`
+/// plus its gradient-similarity term (`PolishSettings::gradient_similarity`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct StageLoss {
     pub stage: &'static str,
@@ -321,7 +322,12 @@ impl<'a> Optimisation<'a> {
         };
         // The stage's loss before: the SVG model at full size, before any coarse iteration.
         polish::into_range(&mut self.scene);
-        let before = polish::model_loss(&mut self.canvas, &self.scene, &self.target);
+        let before = polish::model_loss(
+            &mut self.canvas,
+            &self.scene,
+            &self.target,
+            &self.settings.polish,
+        );
         let keep = self.keep.take();
         let (full, half) = keep_runs(&keep, self.params.seed);
         let (settings, structure) = (&self.settings.polish, &self.settings.structure);

@@ -1,6 +1,7 @@
 //! Final polish (beyond the paper): a short joint optimisation of all three layers under the exact
 //! model a browser shows, `clamp01(R(A)·R(S) + R(L))`, with every value in its SVG range, so the
-//! file is optimal for what is displayed rather than for the unclamped two-layer model.
+//! file is optimal for what is displayed rather than for the unclamped two-layer model. Its loss
+//! adds a gradient-similarity term to the MSE ([`PolishSettings::gradient_similarity`]).
 
 use super::coarse::{Plateau, PlateauSettings};
 use super::params::Error;
@@ -8,6 +9,7 @@ use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo_base};
 use super::structure::{KeepRun, StructureSettings, albedo_term, containment_term};
 use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
+use crate::perceptual::GradientSimilarity;
 use crate::render::Image;
 use crate::render::composite::{svg_model, svg_model_backward};
 use crate::scene::{LayerKind, Scene};
@@ -19,6 +21,14 @@ pub(crate) struct PolishSettings {
     pub adam: AdamSettings,
     /// When the polish stops early.
     pub plateau: PlateauSettings,
+    /// Weight of 1 − GMSM, the mean of GMSD's gradient similarity map
+    /// ([`GradientSimilarity`]), beside the MSE: a departure from the paper, whose loss is the
+    /// MSE alone (weight 0). The MSE rewards a blurred edge as much as a sharp one a pixel off;
+    /// the term asks for the photo's edges where the photo has them. Default 0.01: on the 16
+    /// bench photos at 64 paths GMSD falls 13% for 1.7% more MSE; 0.03 costs the scenes' MSE
+    /// bar, and the term in the earlier stages as well costs 20% more time for 3% more GMSD
+    /// (README, issue 12).
+    pub gradient_similarity: f32,
 }
 
 impl Default for PolishSettings {
@@ -26,6 +36,7 @@ impl Default for PolishSettings {
         Self {
             adam: AdamSettings::default().scaled(0.5),
             plateau: PlateauSettings::default(),
+            gradient_similarity: 0.01,
         }
     }
 }
@@ -41,21 +52,26 @@ pub(crate) fn into_range(scene: &mut Scene) {
     }
 }
 
-/// The SVG model's MSE against the target.
-pub(crate) fn model_loss(canvas: &mut Canvas, scene: &Scene, target: &Image) -> f32 {
+/// The SVG model's loss against the target ([`PolishLoss`]).
+pub(crate) fn model_loss(
+    canvas: &mut Canvas,
+    scene: &Scene,
+    target: &Image,
+    settings: &PolishSettings,
+) -> f32 {
     let mut layers = [Image::default(), Image::default(), Image::default()];
     let (mut composite, mut d_composite) = (Image::default(), Image::default());
     render_all(
         canvas,
         scene,
-        target,
+        &PolishLoss::new(target, settings),
         &mut layers,
         &mut composite,
         &mut d_composite,
     )
 }
 
-/// Runs up to the span's iterations of joint steps (from [`into_range`]) and returns the MSE of
+/// Runs up to the span's iterations of joint steps (from [`into_range`]) and returns the loss of
 /// the SVG model before and after. A coarse part (one that ends early) makes no previews.
 pub(crate) fn polish(
     scene: &mut Scene,
@@ -76,10 +92,11 @@ pub(crate) fn polish(
     let mut d_layers = [Image::default(), Image::default(), Image::default()];
     let (mut composite, mut d_composite) = (Image::default(), Image::default());
     let mut grads = Vec::new();
+    let loss_of = PolishLoss::new(target, settings);
     let initial = render_all(
         &mut canvas,
         scene,
-        target,
+        &loss_of,
         &mut layers,
         &mut composite,
         &mut d_composite,
@@ -144,7 +161,7 @@ pub(crate) fn polish(
         loss = render_all(
             &mut canvas,
             scene,
-            target,
+            &loss_of,
             &mut layers,
             &mut composite,
             &mut d_composite,
@@ -165,11 +182,36 @@ fn k_index(kind: LayerKind) -> usize {
     usize::from(kind == LayerKind::Light)
 }
 
-/// Renders the three layers and the SVG composite; returns the MSE and writes its gradient.
+/// MSE + weight × (1 − GMSM) against one target, whose gradient magnitudes are computed once.
+struct PolishLoss<'a> {
+    target: &'a Image,
+    similarity: Option<(GradientSimilarity, f32)>,
+}
+
+impl<'a> PolishLoss<'a> {
+    fn new(target: &'a Image, settings: &PolishSettings) -> Self {
+        let weight = settings.gradient_similarity;
+        Self {
+            target,
+            similarity: (weight > 0.0).then(|| (GradientSimilarity::new(target), weight)),
+        }
+    }
+
+    /// The loss of `composite`; writes dLoss/dComposite into `grad` (resized).
+    fn of(&self, composite: &Image, grad: &mut Image) -> f32 {
+        let loss = mse(composite, self.target, grad);
+        match &self.similarity {
+            Some((similarity, weight)) => loss + similarity.add_loss(composite, *weight, grad),
+            None => loss,
+        }
+    }
+}
+
+/// Renders the three layers and the SVG composite; returns the loss and writes its gradient.
 fn render_all(
     canvas: &mut Canvas,
     scene: &Scene,
-    target: &Image,
+    loss: &PolishLoss,
     layers: &mut [Image; 3],
     composite: &mut Image,
     d_composite: &mut Image,
@@ -178,5 +220,5 @@ fn render_all(
         canvas.render_layer(scene, kind, &mut layers[k]);
     }
     svg_model(&layers[0], &layers[1], &layers[2], composite);
-    mse(composite, target, d_composite)
+    loss.of(composite, d_composite)
 }
