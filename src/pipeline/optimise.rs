@@ -10,7 +10,7 @@
 use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask};
 use super::init::InitState;
 use super::params::{Error, Params, ResolvedMode};
-use super::polish::{self, PolishSettings};
+use super::polish::{self, PolishLoss, PolishSettings};
 use super::refine::{Growth, RefinePlan, RefineSettings, refine};
 use super::segments::SplitPlan;
 use super::split::{SplitReport, split_layers};
@@ -320,17 +320,16 @@ impl<'a> Optimisation<'a> {
         } else {
             0
         };
-        // The stage's loss before: the SVG model at full size, before any coarse iteration.
-        polish::into_range(&mut self.scene);
-        let before = polish::model_loss(
-            &mut self.canvas,
-            &self.scene,
-            &self.target,
-            &self.settings.polish,
-        );
+        let (settings, structure) = (&self.settings.polish, &self.settings.structure);
+        let full_loss = PolishLoss::new(&self.target, settings);
+        // The stage's loss before: the SVG model at full size, before any coarse iteration
+        // (without one, the fine polish's first loss is that number).
+        let before = (coarse_count > 0).then(|| {
+            polish::into_range(&mut self.scene);
+            polish::model_loss(&mut self.canvas, &self.scene, &self.target, &full_loss)
+        });
         let keep = self.keep.take();
         let (full, half) = keep_runs(&keep, self.params.seed);
-        let (settings, structure) = (&self.settings.polish, &self.settings.structure);
         let span = |start: u32, count: u32| IterationSpan {
             start,
             count,
@@ -339,7 +338,7 @@ impl<'a> Optimisation<'a> {
         let coarse = self.coarse(|small, small_target| {
             polish::polish(
                 small,
-                small_target,
+                (small_target, &PolishLoss::new(small_target, settings)),
                 span(0, coarse_count),
                 settings,
                 half.as_ref().map(|r| (r, structure)),
@@ -349,7 +348,7 @@ impl<'a> Optimisation<'a> {
         let fine = coarse.and_then(|_| {
             polish::polish(
                 &mut self.scene,
-                &self.target,
+                (&self.target, &full_loss),
                 span(coarse_count, total - coarse_count),
                 settings,
                 full.as_ref().map(|r| (r, structure)),
@@ -357,8 +356,8 @@ impl<'a> Optimisation<'a> {
             )
         });
         self.keep = keep;
-        let [_, after] = fine?;
-        self.record(stage, before, after);
+        let [initial, after] = fine?;
+        self.record(stage, before.unwrap_or(initial), after);
         Ok(())
     }
 }

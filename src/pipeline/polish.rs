@@ -52,19 +52,19 @@ pub(crate) fn into_range(scene: &mut Scene) {
     }
 }
 
-/// The SVG model's loss against the target ([`PolishLoss`]).
+/// The SVG model's loss against the target ([`PolishLoss`], made for this target).
 pub(crate) fn model_loss(
     canvas: &mut Canvas,
     scene: &Scene,
     target: &Image,
-    settings: &PolishSettings,
+    loss: &PolishLoss,
 ) -> f32 {
     let mut layers = [Image::default(), Image::default(), Image::default()];
     let (mut composite, mut d_composite) = (Image::default(), Image::default());
     render_all(
         canvas,
         scene,
-        &PolishLoss::new(target, settings),
+        (target, loss),
         &mut layers,
         &mut composite,
         &mut d_composite,
@@ -73,9 +73,10 @@ pub(crate) fn model_loss(
 
 /// Runs up to the span's iterations of joint steps (from [`into_range`]) and returns the loss of
 /// the SVG model before and after. A coarse part (one that ends early) makes no previews.
+/// `loss` is made for `target`.
 pub(crate) fn polish(
     scene: &mut Scene,
-    target: &Image,
+    (target, loss_of): (&Image, &PolishLoss),
     span: IterationSpan,
     settings: &PolishSettings,
     keep: Option<(&KeepRun, &StructureSettings)>,
@@ -92,11 +93,10 @@ pub(crate) fn polish(
     let mut d_layers = [Image::default(), Image::default(), Image::default()];
     let (mut composite, mut d_composite) = (Image::default(), Image::default());
     let mut grads = Vec::new();
-    let loss_of = PolishLoss::new(target, settings);
     let initial = render_all(
         &mut canvas,
         scene,
-        &loss_of,
+        (target, loss_of),
         &mut layers,
         &mut composite,
         &mut d_composite,
@@ -161,7 +161,7 @@ pub(crate) fn polish(
         loss = render_all(
             &mut canvas,
             scene,
-            &loss_of,
+            (target, loss_of),
             &mut layers,
             &mut composite,
             &mut d_composite,
@@ -182,24 +182,24 @@ fn k_index(kind: LayerKind) -> usize {
     usize::from(kind == LayerKind::Light)
 }
 
-/// MSE + weight × (1 − GMSM) against one target, whose gradient magnitudes are computed once.
-struct PolishLoss<'a> {
-    target: &'a Image,
+/// MSE + weight × (1 − GMSM) against one target, whose gradient magnitudes it computes once.
+/// It does not borrow the target, so that a stage can keep it while it runs its coarse part.
+pub(crate) struct PolishLoss {
     similarity: Option<(GradientSimilarity, f32)>,
 }
 
-impl<'a> PolishLoss<'a> {
-    fn new(target: &'a Image, settings: &PolishSettings) -> Self {
+impl PolishLoss {
+    pub(crate) fn new(target: &Image, settings: &PolishSettings) -> Self {
         let weight = settings.gradient_similarity;
         Self {
-            target,
             similarity: (weight > 0.0).then(|| (GradientSimilarity::new(target), weight)),
         }
     }
 
-    /// The loss of `composite`; writes dLoss/dComposite into `grad` (resized).
-    fn of(&self, composite: &Image, grad: &mut Image) -> f32 {
-        let loss = mse(composite, self.target, grad);
+    /// The loss of `composite` against `target` (the one the loss was made for); writes
+    /// dLoss/dComposite into `grad` (resized).
+    fn of(&self, composite: &Image, target: &Image, grad: &mut Image) -> f32 {
+        let loss = mse(composite, target, grad);
         match &self.similarity {
             Some((similarity, weight)) => loss + similarity.add_loss(composite, *weight, grad),
             None => loss,
@@ -211,7 +211,7 @@ impl<'a> PolishLoss<'a> {
 fn render_all(
     canvas: &mut Canvas,
     scene: &Scene,
-    loss: &PolishLoss,
+    (target, loss): (&Image, &PolishLoss),
     layers: &mut [Image; 3],
     composite: &mut Image,
     d_composite: &mut Image,
@@ -220,5 +220,5 @@ fn render_all(
         canvas.render_layer(scene, kind, &mut layers[k]);
     }
     svg_model(&layers[0], &layers[1], &layers[2], composite);
-    loss.of(composite, d_composite)
+    loss.of(composite, target, d_composite)
 }

@@ -228,8 +228,12 @@ pub(crate) fn optimise_reconstruction(
         hold_albedo(&mut grads_a, mode);
         adam_albedo.step(&mut scene.albedo.paths, &grads_a);
         adam_illum.step(&mut scene.shade.paths, &grads_i);
-        pull.add(&scene.shade.paths, &grads_i);
-        let due = split.due(it + 1, span.count, scene.segment_count());
+        // Once the scene holds its target no split is due, and the pull is not needed.
+        let segments = scene.segment_count();
+        if segments < split.target {
+            pull.add(&scene.shade.paths, &grads_i);
+        }
+        let due = split.due(it + 1, span.count, segments);
         if due > 0 {
             SplitLayer {
                 paths: &mut scene.shade.paths,
