@@ -255,6 +255,9 @@ fn decode_oriented(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputE
     {
         return Err(InputError::Truncated);
     }
+    if reader.format() == Some(image::ImageFormat::Png) {
+        check_png_palette(bytes)?;
+    }
     // Our own pixel limit is checked first, from the header; the decoder's allocation limit
     // is set after it (room for the largest allowed image at 16-bit RGBA, twice).
     reader.no_limits();
@@ -323,6 +326,30 @@ fn jpeg_is_complete(bytes: &[u8]) -> bool {
             }
         }
     }
+}
+
+/// Refuses a PNG palette (PLTE chunk) that is empty, longer than 256 entries or not a whole
+/// number of 3-byte entries, all errors by the PNG specification (11.2.3), before the decoder
+/// sees it: png 0.18.1 panics expanding such a palette when its CRC is right (found by the
+/// `image` fuzz target, which skips CRC checks). Chunks are walked up to the first IDAT, which
+/// a palette must precede; a malformed chunk list is left for the decoder to report.
+fn check_png_palette(bytes: &[u8]) -> Result<(), InputError> {
+    const SIGNATURE: usize = 8;
+    let mut at = SIGNATURE;
+    while let Some(header) = bytes.get(at..at + 8) {
+        let length = u32::from_be_bytes([header[0], header[1], header[2], header[3]]) as usize;
+        match &header[4..8] {
+            b"IDAT" => break,
+            b"PLTE" if length == 0 || length % 3 != 0 || length > 3 * 256 => {
+                return Err(InputError::Undecodable(format!(
+                    "the PNG palette is {length} bytes long; a palette holds 1 to 256 entries of 3 bytes"
+                )));
+            }
+            _ => {}
+        }
+        at = at.saturating_add(length).saturating_add(12);
+    }
+    Ok(())
 }
 
 /// Composites any alpha over white and drops it, keeping the bit depth.

@@ -44,3 +44,28 @@ fn edit_refuses_scenes_it_cannot_draw() {
         assert!(stderr.contains(needle), "{name}: {stderr}");
     }
 }
+
+/// A palette PNG whose PLTE chunk is 544 bytes (not a whole number of 3-byte entries) with
+/// correct CRCs: png 0.18.1 panicked expanding it (the `image` target found it). Decoding
+/// refuses it, and `covec vectorize` says so in one line.
+#[test]
+fn a_png_palette_of_partial_entries_is_refused() {
+    let path = input("png-palette-544-bytes.png");
+    let bytes = std::fs::read(&path).unwrap();
+    let error = covec::imageio::decode_image(&bytes, &Default::default()).unwrap_err();
+    assert!(error.to_string().contains("palette is 544 bytes"), "{error}");
+
+    let out_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz_regressions");
+    std::fs::create_dir_all(&out_dir).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_covec"))
+        .arg("vectorize")
+        .arg(&path)
+        .arg("-o")
+        .arg(out_dir.join("palette.svg"))
+        .output()
+        .expect("covec runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(stderr.contains("palette is 544 bytes"), "{stderr}");
+}
