@@ -340,7 +340,7 @@ fn check_png_palette(bytes: &[u8]) -> Result<(), InputError> {
         let length = u32::from_be_bytes([header[0], header[1], header[2], header[3]]) as usize;
         match &header[4..8] {
             b"IDAT" => break,
-            b"PLTE" if length == 0 || length % 3 != 0 || length > 3 * 256 => {
+            b"PLTE" if length == 0 || !length.is_multiple_of(3) || length > 3 * 256 => {
                 return Err(InputError::Undecodable(format!(
                     "the PNG palette is {length} bytes long; a palette holds 1 to 256 entries of 3 bytes"
                 )));

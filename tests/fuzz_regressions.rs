@@ -53,7 +53,10 @@ fn a_png_palette_of_partial_entries_is_refused() {
     let path = input("png-palette-544-bytes.png");
     let bytes = std::fs::read(&path).unwrap();
     let error = covec::imageio::decode_image(&bytes, &Default::default()).unwrap_err();
-    assert!(error.to_string().contains("palette is 544 bytes"), "{error}");
+    assert!(
+        error.to_string().contains("palette is 544 bytes"),
+        "{error}"
+    );
 
     let out_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz_regressions");
     std::fs::create_dir_all(&out_dir).unwrap();
