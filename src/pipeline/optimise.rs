@@ -321,7 +321,8 @@ impl<'a> Optimisation<'a> {
             0
         };
         let (settings, structure) = (&self.settings.polish, &self.settings.structure);
-        let full_loss = PolishLoss::new(&self.target, settings);
+        let weight = settings.similarity_weight(self.target.width * self.target.height);
+        let full_loss = PolishLoss::new(&self.target, weight);
         // The stage's loss before: the SVG model at full size, before any coarse iteration
         // (without one, the fine polish's first loss is that number).
         let before = (coarse_count > 0).then(|| {
@@ -338,7 +339,7 @@ impl<'a> Optimisation<'a> {
         let coarse = self.coarse(|small, small_target| {
             polish::polish(
                 small,
-                (small_target, &PolishLoss::new(small_target, settings)),
+                (small_target, &PolishLoss::new(small_target, weight)),
                 span(0, coarse_count),
                 settings,
                 half.as_ref().map(|r| (r, structure)),
