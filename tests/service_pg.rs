@@ -21,13 +21,16 @@ fn quick_params(seed: u32) -> String {
     )
 }
 
-/// Parameters of a job long enough to be caught running (about 4 s on an idle core; its
-/// progress shows within 0.7 s) and short enough to run again, with this seed.
-fn seconds_params(seed: u32) -> String {
-    format!(
-        r#"{{"paths": 16, "max_size": 48, "seed": {seed},
+/// A job (image, parameters) long enough to be caught running and short enough to run again,
+/// with this seed: about 3.3 s at 128² and 64 paths on two idle cores (measured 2026-11-27).
+/// The stages stop early once their loss plateaus, so the iteration counts are only a ceiling:
+/// at 48² and 16 paths the job took 0.45 s and once ended before the test could kill its worker.
+fn seconds_job(seed: u32) -> (Vec<u8>, String) {
+    let params = format!(
+        r#"{{"paths": 64, "max_size": 128, "seed": {seed},
            "iterations": {{"structure": 1500, "reconstruction": 1500, "refine_rounds": 1, "refine": 1500, "polish": 1500}}}}"#
-    )
+    );
+    (test_png(128), params)
 }
 
 /// Room for [`LONG_PARAMS`].
@@ -177,8 +180,8 @@ async fn a_job_whose_worker_is_killed_succeeds_on_another() {
     let files = DataDir::plain("pg-kill");
     let server = api(&files, "api", &postgres);
     let doomed = worker(&files, "doomed", &postgres);
-    let params = seconds_params(3);
-    let id = submit(&server, &test_png(48), &params).await;
+    let (image, params) = seconds_job(3);
+    let id = submit(&server, &image, &params).await;
     server
         .wait_for(&id, Duration::from_secs(60), |job| {
             job["status"] == "running" && !job["progress"].is_null()
@@ -312,8 +315,8 @@ async fn a_database_restart_loses_no_job() {
     let files = DataDir::plain("pg-restart");
     let server = api(&files, "api", &postgres);
     let _worker = worker(&files, "worker", &postgres);
-    let params = seconds_params(5);
-    let id = submit(&server, &test_png(48), &params).await;
+    let (image, params) = seconds_job(5);
+    let id = submit(&server, &image, &params).await;
     server
         .wait_for(&id, Duration::from_secs(60), |job| {
             job["status"] == "running"
@@ -353,8 +356,8 @@ async fn sse_clients_of_a_killed_replica_see_completion_on_the_other() {
         api(&files, "api-1", &postgres),
     ];
     let _worker = worker(&files, "worker", &postgres);
-    let params = seconds_params(9);
-    let id = submit(&apis[0], &test_png(48), &params).await;
+    let (image, params) = seconds_job(9);
+    let id = submit(&apis[0], &image, &params).await;
     let path = format!("/v1/jobs/{id}/events");
     let client = Client::builder(TokioExecutor::new()).build_http::<Full<Bytes>>();
     let request = hyper::Request::builder()
