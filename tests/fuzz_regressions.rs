@@ -11,13 +11,32 @@ fn input(name: &str) -> PathBuf {
         .join(name)
 }
 
+/// Where the commands write what they would make.
+fn out_dir() -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz_regressions");
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Runs `covec ARGS` and holds it to the CLI's refusal: exit 1, one line naming `needle`.
+fn assert_refused(args: &[&std::ffi::OsStr], needle: &str) {
+    let out = Command::new(env!("CARGO_BIN_EXE_covec"))
+        .args(args)
+        .output()
+        .expect("covec runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+    assert!(stderr.contains(needle), "{args:?}: {stderr}");
+}
+
 /// Scenes whose canvas is empty (0×0: the preview's PNG encoder panicked), 100 000² (the
 /// composite asked for 120 GB) or u32::MAX² (the pixel count overflowed): `covec edit`, which
 /// draws the scene at its canvas size, refuses each with one line instead.
 #[test]
 fn edit_refuses_scenes_it_cannot_draw() {
-    let out_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz_regressions");
-    std::fs::create_dir_all(&out_dir).unwrap();
+    let out_dir = out_dir();
+    let (edited, preview) = (out_dir.join("edited.svg"), out_dir.join("edited.png"));
     for (name, needle) in [
         ("scene-empty-canvas.json", "canvas has no pixels"),
         ("scene-huge-canvas.json", "more than the limit"),
@@ -29,19 +48,19 @@ fn edit_refuses_scenes_it_cannot_draw() {
             covec::output::check_canvas(&scene, 40_000_000).is_err(),
             "{name}"
         );
-        let out = Command::new(env!("CARGO_BIN_EXE_covec"))
-            .arg("edit")
-            .arg(&path)
-            .args(["--set", "albedo-0=#ff0000", "-o"])
-            .arg(out_dir.join("edited.svg"))
-            .arg("--preview")
-            .arg(out_dir.join("edited.png"))
-            .output()
-            .expect("covec runs");
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{name}: {stderr}");
-        assert_eq!(stderr.lines().count(), 1, "{name}: {stderr}");
-        assert!(stderr.contains(needle), "{name}: {stderr}");
+        assert_refused(
+            &[
+                "edit".as_ref(),
+                path.as_ref(),
+                "--set".as_ref(),
+                "albedo-0=#ff0000".as_ref(),
+                "-o".as_ref(),
+                edited.as_ref(),
+                "--preview".as_ref(),
+                preview.as_ref(),
+            ],
+            needle,
+        );
     }
 }
 
@@ -58,17 +77,14 @@ fn a_png_palette_of_partial_entries_is_refused() {
         "{error}"
     );
 
-    let out_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz_regressions");
-    std::fs::create_dir_all(&out_dir).unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_covec"))
-        .arg("vectorize")
-        .arg(&path)
-        .arg("-o")
-        .arg(out_dir.join("palette.svg"))
-        .output()
-        .expect("covec runs");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert_eq!(stderr.lines().count(), 1, "{stderr}");
-    assert!(stderr.contains("palette is 544 bytes"), "{stderr}");
+    let svg = out_dir().join("palette.svg");
+    assert_refused(
+        &[
+            "vectorize".as_ref(),
+            path.as_ref(),
+            "-o".as_ref(),
+            svg.as_ref(),
+        ],
+        "palette is 544 bytes",
+    );
 }
