@@ -184,6 +184,13 @@ pub(crate) fn run(
     let budget = Budget::new(params.paths as usize, mode);
     let min_area = min_mask_area(w, h);
 
+    // Experiment (issue 12, astronaut): GREEDY=1 greedy in pick order (GREEDY_BASE: the base
+    // is the mean of the uncovered pixels), GREEDY=2 greedy in organised paint order.
+    let candidates = match std::env::var("GREEDY").ok().as_deref() {
+        Some("2") => greedy_stack(candidates, &albedo_map, 2 * budget.albedo),
+        Some(_) => greedy_order(candidates, &albedo_map, 2 * budget.albedo),
+        None => candidates,
+    };
     let mut albedo_masks = select(&candidates, budget.albedo, true, w, h);
     let mut illumination_masks = Vec::new();
     if budget.albedo > 1 || mode == ResolvedMode::Photo {
@@ -309,6 +316,130 @@ fn owner_map(layer: &LayerGroups, w: usize, h: usize) -> Vec<Option<usize>> {
         }
     }
     owner
+}
+
+/// Greedy in pick order: each next mask is painted over the earlier ones.
+fn greedy_order(mut rest: Vec<Candidate>, image: &Image, count: usize) -> Vec<Candidate> {
+    let n = image.width * image.height;
+    let total = channel_sums(image, 0..n);
+    let mean = total.map(|t| (t / n.max(1) as f64) as f32);
+    let mut state: Vec<[f32; 3]> = vec![mean; n];
+    let mut covered = vec![false; n];
+    let px = |i: usize| [image.data[3 * i], image.data[3 * i + 1], image.data[3 * i + 2]];
+    let mut means: Vec<[f32; 3]> = rest
+        .iter()
+        .map(|c| {
+            let s = channel_sums(image, c.mask.indices());
+            s.map(|v| (v / c.mask.area().max(1) as f64) as f32)
+        })
+        .collect();
+    let mut out = Vec::new();
+    while out.len() < count && !rest.is_empty() {
+        let gains: Vec<f64> = rest
+            .iter()
+            .zip(&means)
+            .map(|(c, m)| {
+                c.mask
+                    .indices()
+                    .map(|i| {
+                        let (a, s) = (px(i), state[i]);
+                        (0..3)
+                            .map(|k| {
+                                f64::from((a[k] - s[k]).powi(2)) - f64::from((a[k] - m[k]).powi(2))
+                            })
+                            .sum::<f64>()
+                    })
+                    .sum()
+            })
+            .collect();
+        let best = (0..rest.len())
+            .max_by(|&a, &b| gains[a].total_cmp(&gains[b]).then(b.cmp(&a)))
+            .unwrap();
+        let c = rest.remove(best);
+        let m = means.remove(best);
+        for i in c.mask.indices() {
+            state[i] = m;
+            covered[i] = true;
+        }
+        if std::env::var("GREEDY_BASE").is_ok() {
+            let open: Vec<usize> = (0..n).filter(|&i| !covered[i]).collect();
+            if !open.is_empty() {
+                let s = channel_sums(image, open.iter().copied());
+                let b = s.map(|v| (v / open.len() as f64) as f32);
+                for &i in &open {
+                    state[i] = b;
+                }
+            }
+        }
+        out.push(Candidate { mask: c.mask, gain: gains[best] as f32 });
+    }
+    out.extend(rest);
+    out
+}
+
+/// Greedy in the organised paint order: larger masks below smaller ones.
+fn greedy_stack(mut rest: Vec<Candidate>, image: &Image, count: usize) -> Vec<Candidate> {
+    let n = image.width * image.height;
+    let px = |i: usize| [image.data[3 * i], image.data[3 * i + 1], image.data[3 * i + 2]];
+    let base = |top: &[usize]| {
+        let open: Vec<usize> = (0..n).filter(|&i| top[i] == usize::MAX).collect();
+        let s = channel_sums(image, open.iter().copied());
+        (open.len(), s.map(|v| (v / open.len().max(1) as f64) as f32))
+    };
+    let mut top = vec![usize::MAX; n];
+    let (_, b) = base(&top);
+    let mut colour: Vec<[f32; 3]> = vec![b; n];
+    let mut out = Vec::new();
+    while out.len() < count && !rest.is_empty() {
+        let gains: Vec<f64> = rest
+            .iter()
+            .map(|c| {
+                let area = c.mask.area();
+                let (mut k, mut sa, mut saa, mut sas) = (0usize, [0f64; 3], 0f64, 0f64);
+                for i in c.mask.indices() {
+                    if top[i] <= area {
+                        continue;
+                    }
+                    k += 1;
+                    let (a, s) = (px(i), colour[i]);
+                    for ch in 0..3 {
+                        let av = f64::from(a[ch]);
+                        sa[ch] += av;
+                        saa += av * av;
+                        sas += (av - f64::from(s[ch])).powi(2);
+                    }
+                }
+                if k == 0 {
+                    return 0.0;
+                }
+                let mm: f64 = sa.iter().map(|v| v * v).sum::<f64>() / k as f64;
+                sas - (saa - mm)
+            })
+            .collect();
+        let best = (0..rest.len())
+            .max_by(|&a, &b| gains[a].total_cmp(&gains[b]).then(b.cmp(&a)))
+            .unwrap();
+        let c = rest.remove(best);
+        let area = c.mask.area();
+        let visible: Vec<usize> = c.mask.indices().filter(|&i| top[i] > area).collect();
+        let s = channel_sums(image, visible.iter().copied());
+        let m = s.map(|v| (v / visible.len().max(1) as f64) as f32);
+        for &i in &visible {
+            top[i] = area;
+            colour[i] = m;
+        }
+        let (open, b) = base(&top);
+        if open > 0 {
+            for i in 0..n {
+                if top[i] == usize::MAX {
+                    colour[i] = b;
+                }
+            }
+        }
+        out.push(Candidate { mask: c.mask, gain: gains[best] as f32 });
+    }
+    out.extend(rest);
+    out
 }
 
 fn sorted(mut candidates: Vec<Candidate>) -> Vec<Candidate> {
