@@ -176,24 +176,6 @@ impl GradientSimilarity {
         // dLoss/d(gx, gy), interleaved, Padded layout.
         let mut d_gradients = vec![0.0; 2 * luma.values.len()];
         let row_len = 2 * luma.stride();
-        // Experiment: GMSD_STD makes the term GMSD's standard deviation, not 1 − its mean.
-        let std_mode = std::env::var("GMSD_STD").is_ok();
-        let (mean_gms, std_gms) = if std_mode {
-            let mut vals = Vec::with_capacity(luma.width * luma.height);
-            for y in 0..luma.height {
-                for x in 0..luma.width {
-                    let i = luma.index(x, y);
-                    let (gx, gy) = luma.prewitt(&luma.values, i);
-                    let (a, b) = (self.reference[i], (gx * gx + gy * gy).sqrt());
-                    vals.push(f64::from((2.0 * a * b + t) / (a * a + b * b + t)));
-                }
-            }
-            let m = vals.iter().sum::<f64>() / vals.len().max(1) as f64;
-            let v = vals.iter().map(|g| (g - m) * (g - m)).sum::<f64>() / vals.len().max(1) as f64;
-            (m as f32, v.sqrt().max(1e-6) as f32)
-        } else {
-            (0.0, 1.0)
-        };
         let band_sums: Vec<f64> = d_gradients[row_len..row_len * (luma.height + 1)]
             .par_chunks_mut(row_len * BAND_ROWS)
             .enumerate()
@@ -208,10 +190,7 @@ impl GradientSimilarity {
                         let (num, den) = (2.0 * a * b + t, a * a + b * b + t);
                         sum += f64::from(1.0 - num / den);
                         if b > 0.0 {
-                            let mut d_b = (2.0 * b * num - 2.0 * a * den) / (den * den) / n;
-                            if std_mode {
-                                d_b *= -(num / den - mean_gms) / std_gms;
-                            }
+                            let d_b = (2.0 * b * num - 2.0 * a * den) / (den * den) / n;
                             row[2 * (x + 1)] = d_b * gx / b;
                             row[2 * (x + 1) + 1] = d_b * gy / b;
                         }
@@ -247,9 +226,6 @@ impl GradientSimilarity {
                     }
                 }
             });
-        if std_mode {
-            return weight * std_gms;
-        }
         weight * (band_sums.iter().sum::<f64>() / f64::from(n)) as f32
     }
 }

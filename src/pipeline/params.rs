@@ -111,7 +111,7 @@ impl Default for Iterations {
             reconstruction: 50,
             refine_rounds: 5,
             refine: 100,
-            polish: std::env::var("IT_POLISH").ok().and_then(|v| v.parse().ok()).unwrap_or(160),
+            polish: 160,
         }
     }
 }

@@ -134,20 +134,6 @@ pub(crate) fn refine(
             .zip(target.data.chunks_exact(3))
             .map(|(p, t)| (0..3).map(|c| (p[c] - t[c]) * (p[c] - t[c])).sum())
             .collect();
-        // Experiment: REFINE_GMS=beta adds beta × (1 − GMS) to each pixel's error.
-        let mut error = error;
-        if let Some(beta) = std::env::var("REFINE_GMS").ok().and_then(|v| v.parse::<f32>().ok()) {
-            use crate::perceptual::{Grey, gradient_magnitude};
-            let m1 = gradient_magnitude(&Grey::luma(target));
-            let m2 = gradient_magnitude(&Grey::luma(&composite));
-            for (i, e) in error.iter_mut().enumerate() {
-                let (x, y) = (i % w, i / w);
-                let j = (y / 2) * m1.width + x / 2;
-                let (a, b) = (m1.data[j], m2.data[j]);
-                let q = (2.0 * a * b + 170.0) / (a * a + b * b + 170.0);
-                *e += beta * (1.0 - q as f32);
-            }
-        }
         let regions = high_error_regions(&error, w, h, count);
         let mut new_paths: Vec<Path> = regions
             .iter()
@@ -343,31 +329,6 @@ fn region_path(
 ) -> Option<Path> {
     let ellipse = Ellipse::of_region(region, width, settings.min_radius)?;
     let color = fitted_color(region.pixels.iter().copied(), target, factor, color_max);
-    // Experiment: REFINE_CONTOUR=N starts the path as the region's outline, ≤ N vertices.
-    if let Some(max_v) = std::env::var("REFINE_CONTOUR").ok().and_then(|v| v.parse::<usize>().ok()) {
-        let height = target.height;
-        let mut inside = vec![false; width * height];
-        for &p in &region.pixels {
-            inside[p] = true;
-        }
-        let mask = crate::decompose::mask::Mask::from_fn(width, height, |x, y| inside[y * width + x]).fill_holes();
-        if mask.area() >= 12 {
-            let boundary = mask.outer_boundary();
-            let mut tol = 0.75f32;
-            loop {
-                let poly = crate::geom::contour::simplify_closed(&boundary, |_| tol);
-                if poly.len() <= max_v || tol > 64.0 {
-                    if poly.len() >= 3 {
-                        if let Some(p) = Path::from_polygon(&poly, color, 1.0) {
-                            return Some(p);
-                        }
-                    }
-                    break;
-                }
-                tol *= 1.5;
-            }
-        }
-    }
     Some(ellipse.to_path(REGION_PATH_SEGMENTS, color, 1.0))
 }
 
