@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Property-based tests of the running service against api/openapi.yaml (README, "The HTTP
-# service"): schemathesis 4.x with every check and every phase (examples, coverage, fuzzing,
-# stateful), against a fresh `covec serve` on a free loopback port with default limits.
+# Property-based tests of the running service against api/openapi.yaml (docs/design.md,
+# "Tests"): schemathesis 4.x with every check and every phase (examples, coverage, fuzzing,
+# stateful), against fresh `covec serve`s on free loopback ports with default limits, one open
+# and one with an API key.
 # The document's examples create a real job (a 16×16 PNG) and an edit of it, and its links carry
 # their ids to every other operation. Installs schemathesis from PyPI into a virtual environment
 # under ~/.cache on first use.
@@ -28,19 +29,31 @@ else
 fi
 
 work=$(mktemp -d)
-# Room for every job the run creates; one worker keeps the machine usable meanwhile.
-"$covec" serve --addr 127.0.0.1:0 --data-dir "$work/data" --workers 1 --max-queued 100000 \
-    >"$work/stdout" 2>"$work/server.log" &
-server=$!
-trap 'kill "$server" 2>/dev/null; wait "$server" 2>/dev/null; rm -rf "$work"' EXIT
-for _ in $(seq 100); do
-    grep -q "listening on" "$work/stdout" 2>/dev/null && break
-    sleep 0.1
-done
-base=$(sed -n 's/^covec serve: listening on //p' "$work/stdout")
-[[ -n "$base" ]] || { echo "schemathesis.sh: the server did not start:" >&2; cat "$work/server.log" >&2; exit 1; }
+servers=()
+trap 'kill "${servers[@]}" 2>/dev/null; wait 2>/dev/null; rm -rf "$work"' EXIT
 
-# Fixed seed and bounded examples: the same run each time, about a minute.
-"$venv/bin/schemathesis" --config-file scripts/schemathesis.toml run api/openapi.yaml --url "$base" --checks all \
-    --phases examples,coverage,fuzzing,stateful --max-examples 25 --seed 20 \
-    --request-timeout 60 "$@"
+# Runs schemathesis against a fresh server started with `serve_args`; the rest of the arguments
+# go to schemathesis. Room for every job the run creates; one worker keeps the machine usable.
+run_against() {
+    local name=$1 serve_args=$2
+    shift 2
+    "$covec" serve --addr 127.0.0.1:0 --data-dir "$work/$name" --workers 1 --max-queued 100000 \
+        $serve_args >"$work/$name.stdout" 2>"$work/$name.log" &
+    servers+=($!)
+    for _ in $(seq 100); do
+        grep -q "listening on" "$work/$name.stdout" 2>/dev/null && break
+        sleep 0.1
+    done
+    local base
+    base=$(sed -n 's/^covec serve: listening on //p' "$work/$name.stdout")
+    [[ -n "$base" ]] || { echo "schemathesis.sh: the server did not start:" >&2; cat "$work/$name.log" >&2; exit 1; }
+    echo "schemathesis.sh: $name server" >&2
+    # Fixed seed and bounded examples: the same run each time, about a minute.
+    "$venv/bin/schemathesis" --config-file scripts/schemathesis.toml run api/openapi.yaml --url "$base" \
+        --checks all --phases examples,coverage,fuzzing,stateful --max-examples 25 --seed 20 \
+        --request-timeout 60 "$@"
+}
+
+# Without keys, and with a key (every request authorised; `X-Client-Key` is checked either way).
+run_against open "" "$@"
+run_against keyed "--api-keys schemathesis-key" -H "Authorization: Bearer schemathesis-key" "$@"

@@ -48,7 +48,7 @@ if [[ -z "${COVEC_SKIP_PG_PASS:-}" ]]; then
     done
     COVEC_TEST_BACKEND=postgres COVEC_TEST_S3_ENDPOINT="http://127.0.0.1:$s3_port" \
         cargo nextest run --no-fail-fast --cargo-profile test -E \
-        'binary(/^(service_(api|jobs|edits|faults|fair|hardening|records|s3|webhooks)|readme_clients)$/)'
+        'binary(/^(service_(api|jobs|edits|downloads|faults|fair|hardening|records|s3|webhooks)|readme_clients|generated_clients)$/)'
     kill "$moto_pid" 2>/dev/null || true
     wait "$moto_pid" 2>/dev/null || true
     trap - EXIT

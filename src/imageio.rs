@@ -239,6 +239,10 @@ pub fn resize_rgb(image: &DynamicImage, w: u32, h: u32) -> Image {
     }
 }
 
+/// The media types of the image formats covec decodes (the `image` crate's features in
+/// Cargo.toml): what an input may be.
+pub const ACCEPTED_MEDIA_TYPES: [&str; 3] = ["image/png", "image/jpeg", "image/webp"];
+
 fn decode_oriented(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputError> {
     let undecodable = |e: image::ImageError| InputError::Undecodable(e.to_string());
     let mut reader = ImageReader::new(Cursor::new(bytes))

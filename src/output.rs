@@ -38,6 +38,19 @@ impl FileKind {
         }
     }
 
+    /// What the file is called after an input's stem when offered for download: `photo.svg`,
+    /// `photo-flat.svg`, `photo-albedo.svg`, `photo.json`, `photo.pdf`, `photo-preview.png`.
+    pub fn download_suffix(self) -> String {
+        match self {
+            FileKind::LayeredSvg => ".svg".into(),
+            FileKind::SceneJson => ".json".into(),
+            FileKind::Layer(kind) => format!("-{}.svg", kind.name()),
+            FileKind::Preview => "-preview.png".into(),
+            FileKind::FlatSvg => "-flat.svg".into(),
+            FileKind::Pdf => ".pdf".into(),
+        }
+    }
+
     /// The media type it is served as.
     pub fn media_type(self) -> &'static str {
         match self {

@@ -24,8 +24,23 @@ pub struct Owner(pub Option<String>);
 #[derive(Clone, Debug)]
 pub struct Client(pub String);
 
+/// `/v1` routes that need no key: nothing in them belongs to a key.
+const PUBLIC: [&str; 1] = ["/v1/limits"];
+
 /// The header naming a client when the server has no API keys.
 const CLIENT_KEY: &str = "x-client-key";
+
+/// An `X-Client-Key` value: 1-255 visible ASCII characters or spaces, not all spaces (the
+/// pattern the API document gives); surrounding spaces are not part of the label.
+fn client_label(value: &[u8]) -> Result<&str, ApiError> {
+    let visible = value.iter().all(|byte| (0x20..=0x7e).contains(byte));
+    match std::str::from_utf8(value) {
+        Ok(label) if visible && value.len() <= 255 && !label.trim().is_empty() => Ok(label.trim()),
+        _ => Err(ApiError::BadRequest(
+            "X-Client-Key must be 1-255 visible ASCII characters".into(),
+        )),
+    }
+}
 
 /// The identity stored for a key.
 pub fn key_id(key: &str) -> String {
@@ -37,7 +52,9 @@ pub async fn require_key(
     mut request: Request,
     next: Next,
 ) -> Result<Response, ApiError> {
-    let owner = if state.key_ids.is_empty() || !request.uri().path().starts_with("/v1/") {
+    let path = request.uri().path();
+    let open = !path.starts_with("/v1/") || PUBLIC.contains(&path);
+    let owner = if state.key_ids.is_empty() || open {
         None
     } else {
         let presented = request
@@ -51,19 +68,16 @@ pub async fn require_key(
             _ => return Err(ApiError::Unauthorized),
         }
     };
-    let client = match &owner {
-        Some(id) => id.clone(),
-        None => match request.headers().get(CLIENT_KEY) {
-            None => String::new(),
-            Some(value) => match value.to_str() {
-                Ok(label) if !label.trim().is_empty() && label.len() <= 255 => key_id(label.trim()),
-                _ => {
-                    return Err(ApiError::BadRequest(
-                        "X-Client-Key must be 1-255 visible ASCII characters".into(),
-                    ));
-                }
-            },
-        },
+    // Checked whether or not it counts (with API keys the key decides), so a request is valid
+    // or not by the same rule on every server.
+    let label = match request.headers().get(CLIENT_KEY) {
+        Some(value) => Some(client_label(value.as_bytes())?),
+        None => None,
+    };
+    let client = match (&owner, label) {
+        (Some(id), _) => id.clone(),
+        (None, Some(label)) => key_id(label),
+        (None, None) => String::new(),
     };
     request.extensions_mut().insert(Owner(owner));
     request.extensions_mut().insert(Client(client));

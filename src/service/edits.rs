@@ -1,5 +1,5 @@
 //! Edits of a finished job: recolour albedo paths while the shade and light layers keep the
-//! lighting (issue 6). An edit is cheap (no optimisation), so it runs within the request, on
+//! lighting. An edit is cheap (no optimisation), so it runs within the request, on
 //! the blocking pool, and is stored under the job: `edits/<edit id>/{edit.json, scene.json,
 //! result.svg, preview.png}`. An edit may build on an earlier edit (`base`), which gives clients
 //! an undo history for free.
@@ -7,23 +7,26 @@
 use std::collections::BTreeMap;
 
 use axum::extract::{FromRequest, Multipart, Path, Request, State};
-use axum::http::{HeaderValue, Method, StatusCode, header};
+use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
 use serde::{Deserialize, Serialize};
 
 use utoipa::ToSchema;
-use utoipa::openapi::schema::AdditionalProperties;
-use utoipa::openapi::schema::RefBuilder;
-use utoipa::openapi::{ObjectBuilder, Ref, RefOr, Schema, Type};
+use utoipa::openapi::schema::{
+    AdditionalProperties, KnownFormat, RefBuilder, SchemaFormat, SchemaType,
+};
+use utoipa::openapi::{ObjectBuilder, OneOfBuilder, Ref, RefOr, Schema, Type};
 
 use super::auth::Owner;
 use super::error::{ApiError, Problem, ResultProblems, Unavailable};
 use super::jobs::find;
-use super::model::JobId;
-use super::results::{Binary, SceneJson, artefact, require_success, scene_file, stored_scene};
+use super::model::{JobId, JobRecord};
+use super::results::{
+    Binary, SceneFiles, SceneJson, Stored, artefact, require_success, stored_scene,
+};
 use super::store::digest;
-use super::submit::{input_error, read_body};
+use super::submit::{UploadQuery, input_error, read_body};
 use super::{AppState, Endpoint, endpoint};
 use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
 use crate::imageio::{self, resize_rgb};
@@ -111,8 +114,11 @@ struct ColorEdit {
     changes: Vec<ChangeRequest>,
 }
 
-/// Exactly one of `path` and `at` (a `null` one counts as absent).
-#[derive(Deserialize, ToSchema)]
+/// One change: exactly one of `path` and `at` (a `null` one counts as absent), a colour and
+/// optionally an opacity. The API document gives it as one of two schemas ([`ChangeRequest`]'s
+/// `PartialSchema`), a change by path and a change at a point, so that generated clients get
+/// two plain types.
+#[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ChangeRequest {
     /// A path id such as `albedo-3`; or give `at`.
@@ -121,11 +127,66 @@ struct ChangeRequest {
     /// A point in viewBox coordinates: the albedo path under it is recoloured.
     #[serde(default)]
     at: Option<Point>,
-    #[schema(value_type = Colour)]
     color: String,
     #[serde(default)]
-    #[schema(minimum = 0, maximum = 1)]
     opacity: Option<f32>,
+}
+
+impl utoipa::PartialSchema for ChangeRequest {
+    fn schema() -> RefOr<Schema> {
+        OneOfBuilder::new()
+            .item(Ref::from_schema_name("PathChange"))
+            .item(Ref::from_schema_name("PointChange"))
+            .description(Some("A change by path id or by a point."))
+            .into()
+    }
+}
+
+impl ToSchema for ChangeRequest {
+    fn schemas(schemas: &mut Vec<(String, RefOr<Schema>)>) {
+        let change = |key: &str, target: RefOr<Schema>, description: &str| {
+            ObjectBuilder::new()
+                .property(key, target)
+                .required(key)
+                .property("color", Ref::from_schema_name(Colour::name()))
+                .required("color")
+                .property(
+                    "opacity",
+                    ObjectBuilder::new()
+                        .schema_type(SchemaType::from_iter([Type::Number, Type::Null]))
+                        .minimum(Some(0.0))
+                        .maximum(Some(1.0))
+                        .description(Some("The new opacity (absent or null: unchanged).")),
+                )
+                .additional_properties(Some(AdditionalProperties::FreeForm(false)))
+                .description(Some(description))
+                .into()
+        };
+        let path_id = ObjectBuilder::new()
+            .schema_type(Type::String)
+            .description(Some("A path id such as `albedo-3`."))
+            .into();
+        schemas.push((
+            "PathChange".into(),
+            change("path", path_id, "Recolour the path with this id."),
+        ));
+        schemas.push((
+            "PointChange".into(),
+            change(
+                "at",
+                Ref::from_schema_name(Point::name()).into(),
+                "Recolour the topmost albedo path under this point (viewBox coordinates).",
+            ),
+        ));
+        schemas.push((
+            Colour::name().into(),
+            <Colour as utoipa::PartialSchema>::schema(),
+        ));
+        schemas.push((
+            Point::name().into(),
+            <Point as utoipa::PartialSchema>::schema(),
+        ));
+    }
 }
 
 /// What a stored edit says about itself.
@@ -180,7 +241,7 @@ impl utoipa::PartialSchema for ReferenceEditRequest {
                 "reference",
                 ObjectBuilder::new()
                     .schema_type(Type::String)
-                    .content_encoding("binary")
+                    .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary)))
                     .description(Some("The edited image, same size as the job's image.")),
             )
             .property(
@@ -225,9 +286,9 @@ enum EditRequest {
         `base` applies the edit on top of an earlier edit of the same job. A JSON body is at most \
         1 MiB (413 `body-too-large`) with at most 4096 changes (413 `too-many-changes`); a \
         reference image over `--max-pixels` is 413 `too-many-pixels`, one cut short 422 \
-        `truncated-image`; a reference edit waits for a decode slot as a submission does (503 \
+        `truncated-image` (unless `accept_truncated=true`); a reference edit waits for a decode slot as a submission does (503 \
         `decode-busy`).",
-    params(("id" = JobId, Path)),
+    params(("id" = JobId, Path), UploadQuery),
     request_body(content(
         (ColorEdit = "application/json", example = json!({"changes": [{"at": {"x": 8, "y": 8}, "color": "#2060c0"}]})),
         (ReferenceEditRequest = "multipart/form-data"),
@@ -250,6 +311,7 @@ async fn create(
 ) -> Result<Response, ApiError> {
     let entry = find(&state, &owner, &id).await?;
     require_success(&entry.snapshot())?;
+    let upload = UploadQuery::of(&request)?;
     let content_type = request
         .headers()
         .get(header::CONTENT_TYPE)
@@ -295,6 +357,7 @@ async fn create(
             EditRequest::Reference { image, params } => {
                 let limits = imageio::Limits {
                     max_pixels,
+                    accept_truncated: upload.accept_truncated,
                     ..imageio::Limits::default()
                 };
                 // The job's input passed the submission's checks (a cut JPEG only if the
@@ -508,38 +571,47 @@ fn store_edit(
     Ok(record)
 }
 
-/// Checks access to the job and the edit id; the edit exists once its record does.
+/// Checks access to the job and the edit id (the edit exists once its record does); the job's
+/// record.
 async fn check_edit(
     state: &AppState,
     owner: &Owner,
     id: &str,
     edit_id: &str,
-) -> Result<(), ApiError> {
-    let entry = find(state, owner, id).await?;
-    require_success(&entry.snapshot())?;
+) -> Result<JobRecord, ApiError> {
+    let record = find(state, owner, id).await?.snapshot();
+    require_success(&record)?;
     check_edit_id(edit_id)?;
-    Ok(())
+    Ok(record)
 }
 
-/// One of an edit's scene files, once the edit exists.
+/// Which edit a request names: the job and edit ids of its path.
+type EditPath = Path<(String, String)>;
+
+/// One of an edit's scene files, once the edit exists, named after the job's input and the
+/// edit (`hopper-edit_….svg`).
 async fn edit_file(
     state: &AppState,
+    request: &HeaderMap,
     owner: &Owner,
-    id: &str,
-    edit_id: &str,
+    Path((id, edit_id)): EditPath,
     kind: FileKind,
 ) -> Result<Response, ApiError> {
-    check_edit(state, owner, id, edit_id).await?;
+    let record = check_edit(state, owner, &id, &edit_id).await?;
     // The record says the edit exists; only its size is looked at, never its changes.
     let queue = state.queue.clone();
-    let (job, record) = (id.to_owned(), edit_record(edit_id));
-    let exists = tokio::task::spawn_blocking(move || queue.store().has_artefact(&job, &record))
+    let (job, edit) = (id.clone(), edit_record(&edit_id));
+    let exists = tokio::task::spawn_blocking(move || queue.store().has_artefact(&job, &edit))
         .await
         .map_err(|error| ApiError::Internal(error.to_string()))??;
     if !exists {
-        return Err(ApiError::ResultNotFound(edit_record(edit_id)));
+        return Err(ApiError::ResultNotFound(edit_record(&edit_id)));
     }
-    scene_file(state, id, &format!("edits/{edit_id}/"), kind).await
+    let files = SceneFiles {
+        prefix: format!("edits/{edit_id}/"),
+        stem: format!("{}-{edit_id}", record.download_stem()),
+    };
+    artefact(state, request, &record, files.stored(kind)).await
 }
 
 /// Where an edit's record is stored.
@@ -561,26 +633,33 @@ const EDIT_RECORD: &str = "edit.json";
 async fn get(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
-    Path((id, edit_id)): Path<(String, String)>,
+    Path((id, edit_id)): EditPath,
+    headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    check_edit(&state, &owner, &id, &edit_id).await?;
-    artefact(&state, &id, edit_record(&edit_id), "application/json").await
+    let record = check_edit(&state, &owner, &id, &edit_id).await?;
+    let stored = Stored {
+        name: edit_record(&edit_id),
+        media_type: "application/json",
+        filename: format!("{}-{edit_id}-edit.json", record.download_stem()),
+    };
+    artefact(&state, &headers, &record, stored).await
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/svg", tag = "edits", operation_id = "getEditSvg",
     summary = "The edited layered SVG",
     params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
     responses(
-        (status = 200, description = "The SVG.", body = String, content_type = "image/svg+xml"),
+        (status = 200, description = "The SVG.", body = Binary, content_type = "image/svg+xml"),
         ResultProblems,
     ),
 )]
 async fn edit_svg(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
-    Path((id, edit_id)): Path<(String, String)>,
+    path: EditPath,
+    headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    edit_file(&state, &owner, &id, &edit_id, FileKind::LayeredSvg).await
+    edit_file(&state, &headers, &owner, path, FileKind::LayeredSvg).await
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/scene.json", tag = "edits", operation_id = "getEditScene",
@@ -594,9 +673,10 @@ async fn edit_svg(
 async fn edit_scene(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
-    Path((id, edit_id)): Path<(String, String)>,
+    path: EditPath,
+    headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    edit_file(&state, &owner, &id, &edit_id, FileKind::SceneJson).await
+    edit_file(&state, &headers, &owner, path, FileKind::SceneJson).await
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/preview.png", tag = "edits", operation_id = "getEditPreview",
@@ -610,7 +690,8 @@ async fn edit_scene(
 async fn edit_preview(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
-    Path((id, edit_id)): Path<(String, String)>,
+    path: EditPath,
+    headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    edit_file(&state, &owner, &id, &edit_id, FileKind::Preview).await
+    edit_file(&state, &headers, &owner, path, FileKind::Preview).await
 }

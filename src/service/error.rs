@@ -7,6 +7,8 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 
+use super::fair::RateRefusal;
+
 /// A response in the API document.
 type DocResponse = utoipa::openapi::RefOr<utoipa::openapi::Response>;
 
@@ -187,8 +189,8 @@ pub enum ApiError {
         actual: u64,
         retry_after: u64,
     },
-    #[error("this key may submit {limit} jobs a minute; retry in {retry_after} s")]
-    RateLimited { limit: u64, retry_after: u64 },
+    #[error("this key may submit {} jobs a minute; retry in {} s", .0.state.per_minute, .0.retry_after)]
+    RateLimited(RateRefusal),
     #[error("every decoding slot stayed busy; retry in {0} s")]
     DecodeBusy(u64),
     #[error("the server is shutting down")]
@@ -234,7 +236,7 @@ impl ApiError {
             | InvalidInput(_)
             | WebhookHostNotAllowed(_)
             | IdempotencyMismatch => StatusCode::UNPROCESSABLE_ENTITY,
-            KeyQueueFull { .. } | RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
+            KeyQueueFull { .. } | RateLimited(_) => StatusCode::TOO_MANY_REQUESTS,
             QueueFull(..) | DecodeBusy(_) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
             NotReady(..) => StatusCode::CONFLICT,
             DataRemoved(_) | JobExpired(_) => StatusCode::GONE,
@@ -272,7 +274,7 @@ impl ApiError {
             IdempotencyMismatch => "idempotency-key-reused",
             QueueFull(..) => "queue-full",
             KeyQueueFull { .. } => "key-queue-full",
-            RateLimited { .. } => "rate-limited",
+            RateLimited(_) => "rate-limited",
             DecodeBusy(_) => "decode-busy",
             ShuttingDown => "shutting-down",
             NotReady(..) => "job-not-succeeded",
@@ -292,11 +294,8 @@ impl ApiError {
             | ApiError::KeyQueueFull {
                 retry_after: seconds,
                 ..
-            }
-            | ApiError::RateLimited {
-                retry_after: seconds,
-                ..
             } => Some(*seconds),
+            ApiError::RateLimited(refusal) => Some(refusal.retry_after),
             ApiError::ShuttingDown => Some(5),
             _ => None,
         }
@@ -310,9 +309,10 @@ impl ApiError {
             | ApiError::TooManyChanges { limit, actual }
             | ApiError::InputsTooLarge { limit, actual }
             | ApiError::KeyQueueFull { limit, actual, .. } => (Some(*limit), Some(*actual)),
-            ApiError::BodyTooLarge { limit }
-            | ApiError::TooManyLabels { limit }
-            | ApiError::RateLimited { limit, .. } => (Some(*limit), None),
+            ApiError::BodyTooLarge { limit } | ApiError::TooManyLabels { limit } => {
+                (Some(*limit), None)
+            }
+            ApiError::RateLimited(refusal) => (Some(u64::from(refusal.state.per_minute)), None),
             _ => (None, None),
         };
         Problem {
@@ -372,6 +372,11 @@ impl IntoResponse for ApiError {
         headers.insert(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON));
         if let Some(seconds) = problem.retry_after {
             headers.insert(header::RETRY_AFTER, HeaderValue::from(seconds));
+        }
+        if let ApiError::RateLimited(refusal) = &self {
+            for (name, value) in refusal.state.fields() {
+                headers.insert(name, HeaderValue::from_str(&value).expect("ASCII"));
+            }
         }
         response
     }

@@ -21,7 +21,9 @@ use std::num::NonZeroU32;
 use std::time::Duration;
 
 use governor::clock::{Clock, DefaultClock};
-use governor::{DefaultDirectRateLimiter, DefaultKeyedRateLimiter, Quota};
+use governor::middleware::{StateInformationMiddleware, StateSnapshot};
+use governor::state::{InMemoryState, NotKeyed, keyed::DefaultKeyedStateStore};
+use governor::{Quota, RateLimiter};
 
 use super::model::{JobRecord, Priority, Status};
 
@@ -327,8 +329,66 @@ impl FairQueue {
 /// several API replicas each allows the rate (the queued limit, kept in the database, holds
 /// across them).
 pub struct SubmissionRates {
-    default: Option<(NonZeroU32, DefaultKeyedRateLimiter<String>)>,
-    overridden: HashMap<String, Option<(NonZeroU32, DefaultDirectRateLimiter)>>,
+    default: Option<(NonZeroU32, KeyedLimiter)>,
+    overridden: HashMap<String, Option<(NonZeroU32, DirectLimiter)>>,
+}
+
+type KeyedLimiter =
+    RateLimiter<String, DefaultKeyedStateStore<String>, DefaultClock, StateInformationMiddleware>;
+type DirectLimiter = RateLimiter<NotKeyed, InMemoryState, DefaultClock, StateInformationMiddleware>;
+
+/// A key's submission rate after a submission was counted, as the IETF `RateLimit-Policy` and
+/// `RateLimit` fields (draft-ietf-httpapi-ratelimit-headers) state it: `per_minute`
+/// submissions a minute, `remaining` of them allowed now, and the whole quota back after
+/// `reset_seconds`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RateState {
+    pub per_minute: u32,
+    pub remaining: u32,
+    pub reset_seconds: u64,
+}
+
+impl RateState {
+    /// The `RateLimit-Policy` and `RateLimit` fields (names in lower case, as HTTP/2 sends
+    /// them). The policy is named `submissions`: it counts `POST /v1/jobs` by key.
+    pub fn fields(&self) -> [(&'static str, String); 2] {
+        [
+            (
+                "ratelimit-policy",
+                format!("\"submissions\";q={};w=60", self.per_minute),
+            ),
+            (
+                "ratelimit",
+                format!(
+                    "\"submissions\";r={};t={}",
+                    self.remaining, self.reset_seconds
+                ),
+            ),
+        ]
+    }
+
+    /// The state `snapshot` describes (after an allowed submission), at `rate` a minute.
+    fn after(rate: NonZeroU32, snapshot: &StateSnapshot) -> Self {
+        let remaining = snapshot.remaining_burst_capacity().min(rate.get());
+        Self {
+            per_minute: rate.get(),
+            remaining,
+            reset_seconds: Self::refill_seconds(rate, rate.get() - remaining),
+        }
+    }
+
+    /// Seconds until `spent` submissions of a `rate` a minute have come back (one every
+    /// 60 / rate seconds), rounded up.
+    fn refill_seconds(rate: NonZeroU32, spent: u32) -> u64 {
+        (u64::from(spent) * 60).div_ceil(u64::from(rate.get()))
+    }
+}
+
+/// A submission over its key's rate: when the next is allowed, and the state to report.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RateRefusal {
+    pub retry_after: u64,
+    pub state: RateState,
 }
 
 impl SubmissionRates {
@@ -337,7 +397,7 @@ impl SubmissionRates {
             default: policy.limits.per_minute.map(|rate| {
                 (
                     rate,
-                    DefaultKeyedRateLimiter::keyed(Quota::per_minute(rate)),
+                    RateLimiter::keyed(Quota::per_minute(rate)).with_middleware(),
                 )
             }),
             overridden: policy
@@ -347,7 +407,7 @@ impl SubmissionRates {
                     let limiter = limits.per_minute.map(|rate| {
                         (
                             rate,
-                            DefaultDirectRateLimiter::direct(Quota::per_minute(rate)),
+                            RateLimiter::direct(Quota::per_minute(rate)).with_middleware(),
                         )
                     });
                     (client.clone(), limiter)
@@ -356,21 +416,34 @@ impl SubmissionRates {
         }
     }
 
-    /// Counts a submission of `client`. Over its rate: `Err((seconds until the next one is
-    /// allowed, submissions per minute allowed))`.
-    pub fn check(&self, client: &str) -> Result<(), (u64, u32)> {
+    /// Counts a submission of `client`: `Ok(None)` when no rate applies to it, `Ok(state)`
+    /// within its rate, `Err` over it.
+    pub fn check(&self, client: &str) -> Result<Option<RateState>, RateRefusal> {
         let (outcome, rate) = match self.overridden.get(client) {
-            Some(None) => return Ok(()),
-            Some(Some((rate, limiter))) => (limiter.check(), rate),
+            Some(None) => return Ok(None),
+            Some(Some((rate, limiter))) => (limiter.check(), *rate),
             None => match &self.default {
-                None => return Ok(()),
-                Some((rate, limiter)) => (limiter.check_key(&client.to_owned()), rate),
+                None => return Ok(None),
+                Some((rate, limiter)) => (limiter.check_key(&client.to_owned()), *rate),
             },
         };
-        outcome.map_err(|not_until| {
-            let wait = not_until.wait_time_from(DefaultClock::default().now());
-            (wait.as_secs_f64().ceil().max(1.0) as u64, rate.get())
-        })
+        match outcome {
+            Ok(snapshot) => Ok(Some(RateState::after(rate, &snapshot))),
+            Err(not_until) => {
+                let wait = not_until.wait_time_from(DefaultClock::default().now());
+                let retry_after = wait.as_secs_f64().ceil().max(1.0) as u64;
+                Err(RateRefusal {
+                    retry_after,
+                    state: RateState {
+                        per_minute: rate.get(),
+                        remaining: 0,
+                        // The next one back after the wait, the rest one by one after it.
+                        reset_seconds: retry_after
+                            + RateState::refill_seconds(rate, rate.get() - 1),
+                    },
+                })
+            }
+        }
     }
 
     /// Drops the state of keys that have not submitted for a while (their buckets are full

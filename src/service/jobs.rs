@@ -14,13 +14,14 @@ use serde::Deserialize;
 
 use super::auth::{Client, Owner};
 use super::error::{ApiError, JobProblems, Problem, TooManyRequests, Unavailable};
+use super::fair::RateState;
 use super::model::{
     Idempotency, IdempotentReplayed, InputManifest, JobEvent, JobId, JobList, JobRecord, JobView,
     Status, is_job_id, new_job_id,
 };
 use super::queue::Admission;
 use super::runner::JobEntry;
-use super::submit::{self, JsonSubmission, MultipartSubmission, decode_inputs};
+use super::submit::{self, JsonSubmission, MultipartSubmission, UploadQuery, decode_inputs};
 use super::{AppState, Endpoint, endpoint};
 
 pub fn endpoints() -> Vec<Endpoint> {
@@ -66,17 +67,6 @@ fn view(state: &AppState, entry: &JobEntry) -> JobView {
     JobView::new(&record, placement)
 }
 
-/// The query of `POST /v1/jobs`.
-#[derive(Deserialize, utoipa::IntoParams)]
-#[into_params(parameter_in = Query)]
-#[serde(deny_unknown_fields)]
-struct CreateQuery {
-    /// Use JPEGs cut short (the missing part decodes as grey) instead of refusing them.
-    #[serde(default)]
-    #[param(default = false)]
-    accept_truncated: bool,
-}
-
 const IDEMPOTENCY_KEY: &str = "idempotency-key";
 const PREFER: &str = "prefer";
 
@@ -94,7 +84,7 @@ const PREFER: &str = "prefer";
         end-of-image marker (cut short in transfer) is refused with 422 `truncated-image` \
         unless `accept_truncated=true` (its missing part then decodes as grey).",
     params(
-        CreateQuery,
+        UploadQuery,
         ("Idempotency-Key" = Option<String>, Header, min_length = 1, max_length = 255),
         ("Prefer" = Option<String>, Header, example = "wait=30",
             description = "`wait=N`: seconds to wait for the job to end before answering."),
@@ -136,13 +126,7 @@ async fn create(
     headers: HeaderMap,
     request: Request,
 ) -> Result<Response, ApiError> {
-    state
-        .rates
-        .check(&client)
-        .map_err(|(retry_after, limit)| ApiError::RateLimited {
-            limit: u64::from(limit),
-            retry_after,
-        })?;
+    let rate = state.rates.check(&client).map_err(ApiError::RateLimited)?;
     let key = match headers.get(IDEMPOTENCY_KEY) {
         Some(value) => match value.to_str() {
             Ok(key) if !key.is_empty() && key.len() <= 255 => Some(key.to_owned()),
@@ -154,8 +138,7 @@ async fn create(
         },
         None => None,
     };
-    let Query(options) = Query::<CreateQuery>::try_from_uri(request.uri())
-        .map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
+    let options = UploadQuery::of(&request)?;
     // Without a key, a full queue refuses before the body is read. With one, a retry gets its
     // replay even when the queue is full: capacity is checked once the key is looked up.
     if key.is_none() {
@@ -178,7 +161,7 @@ async fn create(
                 .await
                 .map_err(|error| ApiError::Internal(error.to_string()))??;
         if let Some(earlier) = earlier {
-            return Ok(created(&state, &earlier, true));
+            return Ok(with_rate(created(&state, &earlier, true), rate));
         }
         state.queue.check_capacity(&client)?;
     }
@@ -231,6 +214,7 @@ async fn create(
         owner: owner.0.clone(),
         idempotency: key.map(|key| Idempotency { key, fingerprint }),
         webhook,
+        input_name: submission.input_name,
         ..JobRecord::queued(
             id,
             client,
@@ -252,10 +236,20 @@ async fn create(
         Admission::Replayed(entry) => (entry, true),
     };
     let wait = preferred_wait(&headers).map(|wait| wait.min(state.max_wait));
-    Ok(match wait {
+    let response = match wait {
         Some(wait) if !wait.is_zero() => waited(&state, &entry, replayed, wait).await,
         _ => created(&state, &entry, replayed),
-    })
+    };
+    Ok(with_rate(response, rate))
+}
+
+/// `response` with the key's `RateLimit-Policy` and `RateLimit` fields, when a rate applies.
+fn with_rate(mut response: Response, rate: Option<RateState>) -> Response {
+    for (name, value) in rate.iter().flat_map(RateState::fields) {
+        let value = HeaderValue::from_str(&value).expect("ASCII");
+        response.headers_mut().insert(name, value);
+    }
+    response
 }
 
 /// The `wait` preference of RFC 7240 (`Prefer: wait=N`, seconds), if sent and well formed;

@@ -12,12 +12,14 @@
 
 mod auth;
 mod conn;
+mod download;
 mod edits;
 mod error;
 mod fair;
 #[doc(hidden)]
 pub mod fuzzing;
 mod jobs;
+mod limits;
 mod model;
 mod openapi;
 mod ops;
@@ -246,6 +248,7 @@ pub fn endpoints() -> Vec<Endpoint> {
     let mut all = jobs::endpoints();
     all.extend(results::endpoints());
     all.extend(edits::endpoints());
+    all.extend(limits::endpoints());
     all.extend(ops::endpoints());
     all
 }

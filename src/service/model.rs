@@ -232,6 +232,27 @@ pub struct JobRecord {
     /// shutdown does not). Always 0 on the embedded backend.
     #[serde(default)]
     pub attempts: u32,
+    /// The uploaded image's file name as the client sent it ([`input_name`]), if any: results
+    /// are offered for download under its stem.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub input_name: Option<String>,
+}
+
+/// The longest input file name kept, in characters.
+const INPUT_NAME_CHARS: usize = 255;
+
+/// A client's file name made safe to keep and show: its last path component (`/` or `\`), with
+/// control characters dropped, at most [`INPUT_NAME_CHARS`] characters; `None` when nothing is
+/// left.
+pub fn input_name(sent: &str) -> Option<String> {
+    let last = sent.rsplit(['/', '\\']).next().unwrap_or(sent);
+    let name: String = last
+        .chars()
+        .filter(|c| !c.is_control())
+        .take(INPUT_NAME_CHARS)
+        .collect();
+    let name = name.trim();
+    (!name.is_empty() && name != "." && name != "..").then(|| name.to_owned())
 }
 
 impl JobRecord {
@@ -267,7 +288,21 @@ impl JobRecord {
             checksums: Default::default(),
             webhook: None,
             attempts: 0,
+            input_name: None,
         }
+    }
+
+    /// What downloads of this job's results are named after: the uploaded file's name without
+    /// its extension, or the job id when the client sent no name.
+    pub fn download_stem(&self) -> String {
+        let stem = self
+            .input_name
+            .as_deref()
+            .map(|name| match name.rsplit_once('.') {
+                Some((stem, _)) if !stem.is_empty() => stem,
+                _ => name,
+            });
+        stem.unwrap_or(&self.id).to_owned()
     }
 
     /// Puts the job back in the queue for a re-run: what the last run produced is forgotten.
@@ -449,6 +484,12 @@ pub struct JobView {
     #[serde(skip_serializing_if = "is_zero")]
     #[schema(required = false, minimum = 1)]
     pub attempts: u32,
+    /// The uploaded image's file name (the multipart part's `filename`, or the JSON
+    /// submission's `filename`), when one was sent; downloads of the results are named after
+    /// it (`Content-Disposition`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = String, required = false)]
+    pub input_name: Option<String>,
     pub urls: Urls,
 }
 
@@ -569,6 +610,36 @@ impl From<&Webhook> for WebhookView {
     }
 }
 
+/// The body of a webhook delivery: the event and the job as `GET /v1/jobs/{id}` shows it,
+/// without its webhook deliveries (those change with every attempt; the body stays the same).
+#[derive(Debug, Serialize, ToSchema)]
+pub struct WebhookMessage {
+    /// `job.started` or `job.completed`.
+    #[serde(rename = "type")]
+    #[schema(pattern = "^job\\.(started|completed)$", example = "job.completed")]
+    pub kind: String,
+    /// When the event happened (the job's `started_at` or `completed_at`).
+    #[schema(format = DateTime)]
+    pub timestamp: String,
+    pub data: JobView,
+}
+
+impl WebhookMessage {
+    pub fn new(record: &JobRecord, event: WebhookEvent) -> Self {
+        let mut job = record.clone();
+        job.webhook = None;
+        let at = match event {
+            WebhookEvent::Started => job.started_at,
+            WebhookEvent::Completed => job.completed_at,
+        };
+        Self {
+            kind: format!("job.{}", event.name()),
+            timestamp: rfc3339(at.unwrap_or_else(now_ms)),
+            data: JobView::new(&job, None),
+        }
+    }
+}
+
 /// Where the job's resources are.
 #[derive(Debug, Serialize, ToSchema)]
 #[schema(as = JobUrls)]
@@ -584,12 +655,24 @@ pub struct Urls {
     pub results: Option<ResultUrls>,
 }
 
+/// Every format of a succeeded job's result.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ResultUrls {
+    /// The layered SVG (albedo, shade with `multiply`, light with `plus-lighter`).
     pub svg: String,
+    /// The same picture as plain opaque paths, for programs without those blend modes.
+    pub flat_svg: String,
+    /// A vector PDF of the flattened picture.
+    pub pdf: String,
+    /// A PNG drawn by covec's renderer at the original width (add `?width=N` for another).
+    pub png: String,
+    /// The JSON scene, which `covec render` and `covec edit` load losslessly.
     pub scene: String,
+    /// The albedo layer alone.
     pub albedo: String,
+    /// The shade layer alone.
     pub shade: String,
+    /// The light layer alone.
     pub light: String,
 }
 
@@ -607,6 +690,9 @@ impl JobView {
         let results =
             (record.status == Status::Succeeded && !record.data_removed).then(|| ResultUrls {
                 svg: format!("{base}/svg"),
+                flat_svg: format!("{base}/svg?flatten=true"),
+                pdf: format!("{base}/pdf"),
+                png: format!("{base}/png"),
                 scene: format!("{base}/scene.json"),
                 albedo: format!("{base}/layers/albedo.svg"),
                 shade: format!("{base}/layers/shade.svg"),
@@ -634,6 +720,7 @@ impl JobView {
             previews: record.previews.clone(),
             webhook: record.webhook.as_ref().map(WebhookView::from),
             attempts: record.attempts,
+            input_name: record.input_name.clone(),
             urls: Urls {
                 events: format!("{base}/events"),
                 cancel: format!("{base}/cancel"),

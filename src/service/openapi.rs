@@ -6,15 +6,22 @@
 use base64::Engine;
 use serde_json::{Value, json};
 use utoipa::openapi::encoding::EncodingBuilder;
+use utoipa::openapi::header::{Header, HeaderBuilder};
 use utoipa::openapi::link::LinkBuilder;
-use utoipa::openapi::request_body::RequestBody;
+use utoipa::openapi::path::{
+    HttpMethod, Operation, OperationBuilder, ParameterBuilder, ParameterIn, PathItemBuilder,
+};
+use utoipa::openapi::request_body::{RequestBody, RequestBodyBuilder};
 use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityRequirement, SecurityScheme};
 use utoipa::openapi::{Components, Content, OpenApi as Document, RefOr, Server};
+use utoipa::openapi::{
+    ContentBuilder, ObjectBuilder, Paths, PathsBuilder, Ref, Required, ResponseBuilder, Type,
+};
 use utoipa::{Modify, OpenApi};
 
 use super::error::{Problem, TooManyRequests, Unavailable};
-use super::model::IdempotentReplayed;
-use super::{edits, jobs, ops, results};
+use super::model::{IdempotentReplayed, WebhookEvent, WebhookMessage};
+use super::{edits, jobs, limits, ops, results};
 use crate::edit::ReferenceParams;
 
 #[derive(OpenApi)]
@@ -29,11 +36,11 @@ use crate::edit::ReferenceParams;
         results::svg, results::layer, results::scene, results::png, results::pdf,
         results::previews, results::preview,
         edits::create, edits::get, edits::edit_svg, edits::edit_scene, edits::edit_preview,
-        ops::healthz, ops::readyz, ops::metrics,
+        ops::healthz, ops::readyz, ops::metrics, limits::limits,
     ),
     // Schemas only referenced from hand-built ones (headers, multipart forms).
     components(
-        schemas(IdempotentReplayed, ReferenceParams),
+        schemas(IdempotentReplayed, ReferenceParams, WebhookMessage),
         responses(Problem, TooManyRequests, Unavailable),
     ),
     tags((name = "jobs"), (name = "results"), (name = "edits"), (name = "operations")),
@@ -89,6 +96,10 @@ struct Contract;
 
 impl Modify for Contract {
     fn modify(&self, document: &mut Document) {
+        downloads(document);
+        request_ids(document);
+        rate_limits(document);
+        document.webhooks = Some(webhooks());
         // OpenAPI 3.1's `info.summary`, which utoipa's `Info` has no field for.
         document
             .info
@@ -132,6 +143,7 @@ impl Modify for Contract {
                 }
             }
         }
+        require_body(&mut create_job.request_body);
         if let Some(content) = body_content(&mut create_job.request_body, "application/json") {
             content.example = Some(small_job());
         }
@@ -170,28 +182,249 @@ impl Modify for Contract {
                 );
             }
         }
+        require_body(&mut create_edit.request_body);
         if let Some(content) = body_content(&mut create_edit.request_body, "multipart/form-data") {
             json_part(content, "params");
         }
-        // A change names exactly one of `path` and `at` (checked when the edit is read; `null`
-        // counts as absent).
-        if let Some(RefOr::T(utoipa::openapi::Schema::Object(change))) = document
-            .components
-            .as_mut()
-            .and_then(|components| components.schemas.get_mut("ChangeRequest"))
-        {
-            change
-                .extensions
-                .get_or_insert_with(Default::default)
-                .insert(
-                    "oneOf".into(),
-                    json!([
-                        { "required": ["path"], "properties": { "path": { "type": "string" } } },
-                        { "required": ["at"], "properties": { "at": { "type": "object" } } },
-                    ]),
-                );
+    }
+}
+
+/// Operations that answer with a file ([`super::download::Download`]): a strong `ETag`,
+/// `Cache-Control`, a `Content-Disposition` download name, and 304 for `If-None-Match`.
+const FILE_OPERATIONS: [&str; 10] = [
+    "getSvg",
+    "getLayerSvg",
+    "getScene",
+    "getPng",
+    "getPdf",
+    "getPreview",
+    "getEdit",
+    "getEditSvg",
+    "getEditScene",
+    "getEditPreview",
+];
+
+/// Every operation of the document.
+fn operations(document: &mut Document) -> impl Iterator<Item = &mut Operation> {
+    document.paths.paths.values_mut().flat_map(|item| {
+        [
+            &mut item.get,
+            &mut item.post,
+            &mut item.put,
+            &mut item.patch,
+            &mut item.delete,
+        ]
+        .into_iter()
+        .flatten()
+    })
+}
+
+fn string_header(description: &str) -> Header {
+    HeaderBuilder::new()
+        .schema(Some(ObjectBuilder::new().schema_type(Type::String)))
+        .description(Some(description))
+        .build()
+}
+
+/// The validator, caching and naming headers of a file, and the 304 that `If-None-Match`
+/// gets.
+fn downloads(document: &mut Document) {
+    let file_headers = [
+        (
+            "ETag",
+            "A strong validator of the file's bytes; send it back as `If-None-Match` to get \
+             a 304 instead of the file again.",
+        ),
+        (
+            "Cache-Control",
+            "`private, max-age=<seconds until the results are removed>, immutable` once the \
+             job has ended (results never change while they exist); `private, no-cache` for \
+             the previews of a running job.",
+        ),
+        (
+            "Content-Disposition",
+            "`inline; filename=\"<stem><suffix>\"`: the uploaded image's file name without \
+             its extension (else the job id), e.g. `hopper.svg`, `hopper-flat.svg`, \
+             `hopper.pdf`, `hopper-albedo.svg`, `hopper.json`; an edit's files add the edit \
+             id. Non-ASCII names also come as RFC 8187 `filename*`.",
+        ),
+    ];
+    for operation in operations(document) {
+        let is_file = operation
+            .operation_id
+            .as_deref()
+            .is_some_and(|id| FILE_OPERATIONS.contains(&id));
+        if !is_file {
+            continue;
+        }
+        operation.parameters.get_or_insert_with(Vec::new).push(
+            ParameterBuilder::new()
+                .name("If-None-Match")
+                .parameter_in(ParameterIn::Header)
+                .required(Required::False)
+                .schema(Some(ObjectBuilder::new().schema_type(Type::String)))
+                .description(Some(
+                    "The `ETag` of a copy the client holds: 304 without a body when it is \
+                         still the file's.",
+                ))
+                .build()
+                .into(),
+        );
+        let mut not_modified = ResponseBuilder::new()
+            .description("Not Modified: the copy named by `If-None-Match` is current.");
+        for (name, description) in file_headers {
+            not_modified = not_modified.header(name, string_header(description));
+            if let Some(RefOr::T(ok)) = operation.responses.responses.get_mut("200") {
+                ok.headers
+                    .insert(name.into(), string_header(description).into());
+            }
+        }
+        operation
+            .responses
+            .responses
+            .insert("304".into(), not_modified.build().into());
+    }
+}
+
+/// `x-request-id` on every response: the id the server logs the request under (the client's
+/// own when it sent one).
+fn request_ids(document: &mut Document) {
+    let header = || {
+        string_header(
+            "The request's id in the server's logs: the client's `x-request-id` when it sent \
+             one, else a UUID. Quote it when reporting a problem.",
+        )
+    };
+    for operation in operations(document) {
+        for response in operation.responses.responses.values_mut() {
+            if let RefOr::T(response) = response {
+                response
+                    .headers
+                    .insert("x-request-id".into(), header().into());
+            }
         }
     }
+    if let Some(components) = document.components.as_mut() {
+        for response in components.responses.values_mut() {
+            if let RefOr::T(response) = response {
+                response
+                    .headers
+                    .insert("x-request-id".into(), header().into());
+            }
+        }
+    }
+}
+
+/// The `RateLimit-Policy` and `RateLimit` fields of a submission (and its 429).
+fn rate_limits(document: &mut Document) {
+    let fields = [
+        (
+            "RateLimit-Policy",
+            "When a submission rate applies to the key (`--rate-per-key`, `--key-limits`): \
+             `\"submissions\";q=<per minute>;w=60` (IETF RateLimit header fields).",
+        ),
+        (
+            "RateLimit",
+            "When a submission rate applies to the key: `\"submissions\";r=<submissions \
+             left now>;t=<seconds until the whole quota is back>`.",
+        ),
+    ];
+    let create_job = document
+        .paths
+        .paths
+        .get_mut("/v1/jobs")
+        .and_then(|item| item.post.as_mut())
+        .expect("POST /v1/jobs is documented");
+    for status in ["200", "201", "202"] {
+        if let Some(RefOr::T(response)) = create_job.responses.responses.get_mut(status) {
+            for (name, description) in fields {
+                response
+                    .headers
+                    .insert(name.into(), string_header(description).into());
+            }
+        }
+    }
+    if let Some(RefOr::T(too_many)) = document
+        .components
+        .as_mut()
+        .and_then(|components| components.responses.get_mut("TooManyRequests"))
+    {
+        for (name, description) in fields {
+            too_many
+                .headers
+                .insert(name.into(), string_header(description).into());
+        }
+    }
+}
+
+/// The `webhooks` section: what a webhook receiver gets.
+fn webhooks() -> Paths {
+    let mut paths = PathsBuilder::new();
+    for event in WebhookEvent::ALL {
+        let name = format!("job.{}", event.name());
+        let signed = [
+            (
+                "webhook-id",
+                "`msg_<job id>_<event>`: the same on every attempt of one event; deduplicate \
+                 on it.",
+            ),
+            ("webhook-timestamp", "Unix seconds of this attempt."),
+            (
+                "webhook-signature",
+                "`v1,<base64 of HMAC-SHA256 over \"<webhook-id>.<webhook-timestamp>.<body>\">`, \
+                 keyed with the server's `--webhook-secret` (base64 after `whsec_`), as \
+                 Standard Webhooks sign.",
+            ),
+        ];
+        let mut operation = OperationBuilder::new()
+            .operation_id(Some(format!("webhook{}", link_name(event.name()))))
+            .summary(Some(match event {
+                WebhookEvent::Started => "A worker took the job",
+                WebhookEvent::Completed => "The job ended (succeeded, failed or canceled)",
+            }))
+            .description(Some(
+                "POSTed to the submission's `webhook` URL for each event it asked for \
+                 (`webhook_events`), signed as Standard Webhooks. Anything but a 2xx within \
+                 10 s is retried after 10 s, 20 s, 40 s … up to `--webhook-attempts`; \
+                 deliveries go on after a restart, so delivery is at least once.",
+            ))
+            .request_body(Some(
+                RequestBodyBuilder::new()
+                    .required(Some(Required::True))
+                    .content(
+                        "application/json",
+                        ContentBuilder::new()
+                            .schema(Some(Ref::from_schema_name("WebhookMessage")))
+                            .build(),
+                    )
+                    .build(),
+            ))
+            .response(
+                "2XX",
+                ResponseBuilder::new().description("Received: no further attempt."),
+            )
+            .response(
+                "default",
+                ResponseBuilder::new().description("Not received: the delivery is retried."),
+            );
+        for (header, description) in signed {
+            operation = operation.parameter(
+                ParameterBuilder::new()
+                    .name(header)
+                    .parameter_in(ParameterIn::Header)
+                    .required(Required::True)
+                    .schema(Some(ObjectBuilder::new().schema_type(Type::String)))
+                    .description(Some(description)),
+            );
+        }
+        paths = paths.path(
+            name,
+            PathItemBuilder::new()
+                .operation(HttpMethod::Post, operation.build())
+                .build(),
+        );
+    }
+    paths.build()
 }
 
 /// The request body's content of `media_type`, when the attributes declared it.
@@ -205,6 +438,13 @@ fn body_content<'a>(
             RefOr::Ref(_) => None,
         },
         RefOr::Ref(_) => None,
+    }
+}
+
+/// A request body the operation cannot do without (the attributes leave `required` out).
+fn require_body(body: &mut Option<RefOr<RequestBody>>) {
+    if let Some(RefOr::T(body)) = body.as_mut() {
+        body.required = Some(Required::True);
     }
 }
 

@@ -5,13 +5,15 @@
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, State};
-use axum::http::{Method, header};
+use axum::http::{HeaderMap, Method};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
 
 use super::auth::Owner;
+use utoipa::openapi::schema::{KnownFormat, SchemaFormat};
 use utoipa::openapi::{ObjectBuilder, RefOr, Schema, Type};
 
+use super::download::{Download, etag_of, filename};
 use super::error::{ApiError, JobProblems, Problem, ResultProblems};
 use super::jobs::find;
 use super::model::{JobId, JobRecord, Status};
@@ -78,14 +80,15 @@ impl utoipa::ToSchema for SceneJson {
     }
 }
 
-/// A binary body (PNG, PDF) in the API document.
+/// A file body (SVG, PNG, PDF) in the API document: a string of bytes, so that client
+/// generators give a file download.
 pub(super) struct Binary;
 
 impl utoipa::PartialSchema for Binary {
     fn schema() -> RefOr<Schema> {
         ObjectBuilder::new()
             .schema_type(Type::String)
-            .content_encoding("binary")
+            .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary)))
             .into()
     }
 }
@@ -102,40 +105,57 @@ pub(super) fn require_success(record: &JobRecord) -> Result<(), ApiError> {
     Ok(())
 }
 
-/// Reads a stored file of a scene (under `prefix`, e.g. `edits/<id>/`) off the async workers.
-pub(super) async fn scene_file(
-    state: &AppState,
-    id: &str,
-    prefix: &str,
-    kind: FileKind,
-) -> Result<Response, ApiError> {
-    artefact(
-        state,
-        id,
-        format!("{prefix}{}", kind.name()),
-        kind.media_type(),
-    )
-    .await
+/// A stored file to serve: its name in the job's folder, its media type, and the name it is
+/// offered for download under.
+pub(super) struct Stored {
+    pub name: String,
+    pub media_type: &'static str,
+    pub filename: String,
 }
 
-/// Reads a stored artefact off the async workers (checked against its recorded digest).
+/// Whose scene files are meant: a job's own (`prefix` empty) or an edit's (`edits/<id>/`), and
+/// the stem their downloads are named with.
+pub(super) struct SceneFiles {
+    pub prefix: String,
+    pub stem: String,
+}
+
+impl SceneFiles {
+    /// The job's own result files.
+    pub fn of_job(record: &JobRecord) -> Self {
+        Self {
+            prefix: String::new(),
+            stem: record.download_stem(),
+        }
+    }
+
+    pub fn stored(&self, kind: FileKind) -> Stored {
+        Stored {
+            name: format!("{}{}", self.prefix, kind.name()),
+            media_type: kind.media_type(),
+            filename: format!("{}{}", self.stem, kind.download_suffix()),
+        }
+    }
+}
+
+/// Reads a stored file of `record`'s job off the async workers (checked against its recorded
+/// digest) and serves it with its validator, caching and download name ([`Download`]).
 pub(super) async fn artefact(
     state: &AppState,
-    id: &str,
-    name: String,
-    media_type: &'static str,
+    request: &HeaderMap,
+    record: &JobRecord,
+    file: Stored,
 ) -> Result<Response, ApiError> {
     let queue = state.queue.clone();
-    let job = id.to_owned();
-    let bytes = tokio::task::spawn_blocking(move || {
+    let (job, name) = (record.id.clone(), file.name);
+    let (name, bytes) = tokio::task::spawn_blocking(move || {
         queue.read_result(&job, &name).map(|bytes| (name, bytes))
     })
     .await
     .map_err(|error| ApiError::Internal(error.to_string()))??;
-    match bytes {
-        (_, Some(bytes)) => Ok(([(header::CONTENT_TYPE, media_type)], bytes).into_response()),
-        (name, None) => Err(ApiError::ResultNotFound(name)),
-    }
+    let bytes = bytes.ok_or(ApiError::ResultNotFound(name))?;
+    let download = Download::of(record, etag_of(&[&bytes]), file.filename, file.media_type);
+    Ok(download.respond(request, || bytes))
 }
 
 /// The query of `GET /v1/jobs/{id}/svg`.
@@ -156,7 +176,7 @@ struct SvgQuery {
     responses(
         (status = 200, description = "The SVG (layered - albedo, shade with \
             `mix-blend-mode:multiply`, light with `plus-lighter` - or flattened).",
-            body = String, content_type = "image/svg+xml"),
+            body = Binary, content_type = "image/svg+xml"),
         ResultProblems,
     ),
 )]
@@ -164,16 +184,24 @@ async fn svg(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
+    headers: HeaderMap,
     query: Result<Query<SvgQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
-    let entry = find(&state, &owner, &id).await?;
-    require_success(&entry.snapshot())?;
+    let record = succeeded(&state, &owner, &id).await?;
     if query.flatten {
-        flat_file(&state, id, FileKind::FlatSvg).await
+        derived(&state, &headers, &record, Derived::Flat(FileKind::FlatSvg)).await
     } else {
-        scene_file(&state, &id, "", FileKind::LayeredSvg).await
+        let file = SceneFiles::of_job(&record).stored(FileKind::LayeredSvg);
+        artefact(&state, &headers, &record, file).await
     }
+}
+
+/// The record of `id` once its job has succeeded (and its results are still there).
+async fn succeeded(state: &AppState, owner: &Owner, id: &str) -> Result<JobRecord, ApiError> {
+    let record = find(state, owner, id).await?.snapshot();
+    require_success(&record)?;
+    Ok(record)
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/pdf", tag = "results", operation_id = "getPdf",
@@ -192,40 +220,99 @@ async fn pdf(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
+    headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id).await?;
-    require_success(&entry.snapshot())?;
-    flat_file(&state, id, FileKind::Pdf).await
+    let record = succeeded(&state, &owner, &id).await?;
+    derived(&state, &headers, &record, Derived::Flat(FileKind::Pdf)).await
 }
 
-/// A flattened output (SVG or PDF) made from the stored scene on demand, off the async workers
-/// and one at a time with the PNG renders (the boolean operations take a CPU for a while).
-async fn flat_file(state: &AppState, id: String, kind: FileKind) -> Result<Response, ApiError> {
+/// A file made from the stored scene on request.
+#[derive(Clone, Copy)]
+enum Derived {
+    /// The flattened SVG or the PDF.
+    Flat(FileKind),
+    /// A PNG this wide (default: the original width).
+    Png(Option<u32>),
+}
+
+impl Derived {
+    /// What the file's bytes depend on besides the scene: its kind, its width, and the covec
+    /// version that draws it.
+    fn key(self) -> String {
+        let kind = match self {
+            Derived::Flat(kind) => kind.name(),
+            Derived::Png(width) => format!("png:{width:?}"),
+        };
+        format!("{kind}/{}", env!("CARGO_PKG_VERSION"))
+    }
+}
+
+/// A file made from the stored scene on request, off the async workers and one at a time with
+/// the other renders (a flattening's boolean operations, or a large PNG, take a CPU for a
+/// while). Its validator comes from the scene's bytes, so a client holding the file gets a 304
+/// before anything is drawn.
+async fn derived(
+    state: &AppState,
+    request: &HeaderMap,
+    record: &JobRecord,
+    file: Derived,
+) -> Result<Response, ApiError> {
+    let queue = state.queue.clone();
+    let id = record.id.clone();
+    let scene = tokio::task::spawn_blocking(move || {
+        let name = FileKind::SceneJson.name();
+        queue
+            .read_result(&id, &name)?
+            .ok_or(ApiError::ResultNotFound(name))
+    })
+    .await
+    .map_err(|error| ApiError::Internal(error.to_string()))??;
+    let (media_type, suffix) = match file {
+        Derived::Flat(kind) => (kind.media_type(), kind.download_suffix()),
+        Derived::Png(_) => ("image/png", ".png".to_owned()),
+    };
+    let etag = etag_of(&[&scene, file.key().as_bytes()]);
+    let download = Download::of(record, etag, filename(record, &suffix), media_type);
+    if download.is_cached_by(request) {
+        return Ok(download.respond(request, Vec::new));
+    }
     let _slot = state
         .png_renders
         .acquire()
         .await
         .map_err(|error| ApiError::Internal(error.to_string()))?;
-    let queue = state.queue.clone();
+    let max_pixels = state.limits.max_pixels;
     let bytes = tokio::task::spawn_blocking(move || {
-        let scene = stored_scene(&queue, &id, "")?;
-        Ok::<_, ApiError>(
-            output::artefacts(&scene, &[kind])
+        let scene: Scene = serde_json::from_slice(&scene)
+            .map_err(|e| ApiError::Internal(format!("stored scene: {e}")))?;
+        match file {
+            Derived::Flat(kind) => Ok(output::artefacts(&scene, &[kind])
                 .pop()
                 .expect("one file asked for")
-                .bytes,
-        )
+                .bytes),
+            Derived::Png(width) => {
+                output::png(&scene, width, max_pixels).map_err(|error| match error {
+                    RasterError::ZeroWidth => ApiError::InvalidParams(error.to_string()),
+                    RasterError::TooManyPixels { actual, limit, .. } => {
+                        ApiError::TooManyPixels { limit, actual }
+                    }
+                    RasterError::EmptyCanvas => {
+                        ApiError::Internal(format!("stored scene: {error}"))
+                    }
+                })
+            }
+        }
     })
     .await
     .map_err(|error| ApiError::Internal(error.to_string()))??;
-    Ok(([(header::CONTENT_TYPE, kind.media_type())], bytes).into_response())
+    Ok(download.respond(request, || bytes))
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/layers/{file}", tag = "results",
     operation_id = "getLayerSvg", summary = "One layer as a standalone SVG",
     params(("id" = JobId, Path), ("file" = inline(LayerFile), Path)),
     responses(
-        (status = 200, description = "The layer's SVG.", body = String, content_type = "image/svg+xml"),
+        (status = 200, description = "The layer's SVG.", body = Binary, content_type = "image/svg+xml"),
         ResultProblems,
     ),
 )]
@@ -233,6 +320,7 @@ async fn layer(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
     Path((id, file)): Path<(String, String)>,
+    headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let entry = find(&state, &owner, &id).await?;
     let Some(kind) = LayerKind::ALL
@@ -243,8 +331,10 @@ async fn layer(
             "layers/{file} (layers are albedo.svg, shade.svg, light.svg)"
         )));
     };
-    require_success(&entry.snapshot())?;
-    scene_file(&state, &id, "", FileKind::Layer(kind)).await
+    let record = entry.snapshot();
+    require_success(&record)?;
+    let file = SceneFiles::of_job(&record).stored(FileKind::Layer(kind));
+    artefact(&state, &headers, &record, file).await
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/scene.json", tag = "results", operation_id = "getScene",
@@ -259,10 +349,11 @@ async fn scene(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
+    headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id).await?;
-    require_success(&entry.snapshot())?;
-    scene_file(&state, &id, "", FileKind::SceneJson).await
+    let record = succeeded(&state, &owner, &id).await?;
+    let file = SceneFiles::of_job(&record).stored(FileKind::SceneJson);
+    artefact(&state, &headers, &record, file).await
 }
 
 /// PNG renders at once: one at the pixel limit holds four f32 RGB images (12 bytes a pixel
@@ -297,32 +388,13 @@ async fn png(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
+    headers: HeaderMap,
     query: Result<Query<PngQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
     let width = query.width.as_deref().map(parse_width).transpose()?;
-    let entry = find(&state, &owner, &id).await?;
-    require_success(&entry.snapshot())?;
-    let _slot = state
-        .png_renders
-        .acquire()
-        .await
-        .map_err(|error| ApiError::Internal(error.to_string()))?;
-    let queue = state.queue.clone();
-    let max_pixels = state.limits.max_pixels;
-    let bytes = tokio::task::spawn_blocking(move || {
-        let scene = stored_scene(&queue, &id, "")?;
-        output::png(&scene, width, max_pixels).map_err(|error| match error {
-            RasterError::ZeroWidth => ApiError::InvalidParams(error.to_string()),
-            RasterError::TooManyPixels { actual, limit, .. } => {
-                ApiError::TooManyPixels { limit, actual }
-            }
-            RasterError::EmptyCanvas => ApiError::Internal(format!("stored scene: {error}")),
-        })
-    })
-    .await
-    .map_err(|error| ApiError::Internal(error.to_string()))??;
-    Ok(([(header::CONTENT_TYPE, "image/png")], bytes).into_response())
+    let record = succeeded(&state, &owner, &id).await?;
+    derived(&state, &headers, &record, Derived::Png(width)).await
 }
 
 /// A `width` query value: a whole number of pixels (0 is refused with the raster's own rule).
@@ -386,6 +458,7 @@ async fn preview(
     State(state): State<AppState>,
     Extension(owner): Extension<Owner>,
     Path((id, file)): Path<(String, String)>,
+    headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let entry = find(&state, &owner, &id).await?;
     let record = entry.snapshot();
@@ -399,5 +472,10 @@ async fn preview(
     if !known {
         return Err(ApiError::ResultNotFound(format!("previews/{file}")));
     }
-    artefact(&state, &id, format!("previews/{file}"), "image/png").await
+    let stored = Stored {
+        name: format!("previews/{file}"),
+        media_type: "image/png",
+        filename: filename(&record, &format!("-{file}")),
+    };
+    artefact(&state, &headers, &record, stored).await
 }

@@ -12,11 +12,11 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use utoipa::ToSchema;
-use utoipa::openapi::schema::{AdditionalProperties, ArrayBuilder, SchemaFormat};
+use utoipa::openapi::schema::{AdditionalProperties, ArrayBuilder, KnownFormat, SchemaFormat};
 use utoipa::openapi::{ObjectBuilder, Ref, RefOr, Schema, Type};
 
 use super::error::ApiError;
-use super::model::{Priority, WebhookEvent};
+use super::model::{Priority, WebhookEvent, input_name};
 use crate::imageio;
 use crate::pipeline::{Inputs, Masks, ParamLimits, Params};
 
@@ -96,6 +96,9 @@ pub struct Submission {
     pub webhook: WebhookRequest,
     /// `priority`, when sent (default interactive).
     pub priority: Option<Priority>,
+    /// The image's file name as sent, made safe ([`input_name`]); not part of the fingerprint:
+    /// a retry of the same image under another name is the same job.
+    pub input_name: Option<String>,
 }
 
 /// The webhook a submission asks for, as sent.
@@ -128,6 +131,10 @@ pub(super) struct JsonSubmission {
     webhook_events: Option<Vec<String>>,
     #[schema(value_type = Option<Priority>)]
     priority: Option<String>,
+    /// The image's file name (e.g. `hopper.jpg`): downloads of the results are named after
+    /// its stem (`hopper.svg`, `hopper-flat.svg`, `hopper.pdf`). Default: the job id.
+    #[schema(max_length = 255, example = "hopper.jpg")]
+    filename: Option<String>,
 }
 
 /// One base64 image in the API document: standard base64, optionally a `data:` URL, with
@@ -177,7 +184,7 @@ impl utoipa::PartialSchema for MultipartSubmission {
         let binary = |description: &str| {
             ObjectBuilder::new()
                 .schema_type(Type::String)
-                .content_encoding("binary")
+                .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary)))
                 .description(Some(description))
         };
         ObjectBuilder::new()
@@ -189,7 +196,7 @@ impl utoipa::PartialSchema for MultipartSubmission {
                     .items(
                         ObjectBuilder::new()
                             .schema_type(Type::String)
-                            .content_encoding("binary"),
+                            .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary))),
                     )
                     .description(Some(
                         "Binary masks, each the image's size (repeat the field). Not with `labels`.",
@@ -213,6 +220,26 @@ impl utoipa::PartialSchema for MultipartSubmission {
 }
 
 impl utoipa::ToSchema for MultipartSubmission {}
+
+/// The query of a request that uploads images (`POST /v1/jobs`, a reference edit).
+#[derive(Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+#[serde(deny_unknown_fields)]
+pub(super) struct UploadQuery {
+    /// Use JPEGs cut short (the missing part decodes as grey) instead of refusing them with
+    /// 422 `truncated-image`.
+    #[serde(default)]
+    #[param(default = false)]
+    pub accept_truncated: bool,
+}
+
+impl UploadQuery {
+    pub fn of(request: &Request) -> Result<Self, ApiError> {
+        axum::extract::Query::<Self>::try_from_uri(request.uri())
+            .map(|query| query.0)
+            .map_err(|rejection| ApiError::BadQuery(rejection.body_text()))
+    }
+}
 
 /// Reads the body of `POST /v1/jobs`.
 pub async fn read(request: Request, limits: &InputLimits) -> Result<Submission, ApiError> {
@@ -254,8 +281,12 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
     let (mut image, mut albedo, mut masks, mut labels, mut params) =
         (None, None, Vec::new(), None, None);
     let (mut webhook, mut webhook_events, mut priority) = (None, None, None);
+    let mut image_name = None;
     while let Some(field) = multipart.next_field().await.map_err(field_error)? {
         let name = field.name().unwrap_or("").to_owned();
+        if name == "image" {
+            image_name = field.file_name().and_then(input_name);
+        }
         let bytes = field.bytes().await.map_err(field_error)?;
         let slot = match name.as_str() {
             "image" => &mut image,
@@ -314,6 +345,7 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
                 .transpose()?
                 .map(|events| events.split(',').map(|e| e.trim().to_owned()).collect()),
         },
+        input_name: image_name,
     })
 }
 
@@ -391,6 +423,7 @@ async fn read_json(request: Request, limits: &InputLimits) -> Result<Submission,
             url: json.webhook,
             events: json.webhook_events,
         },
+        input_name: json.filename.as_deref().and_then(input_name),
     })
 }
 

@@ -34,8 +34,8 @@ use tracing::{info, warn};
 
 use super::error::ApiError;
 use super::model::{
-    Attempt, Delivery, DeliveryStatus, JobRecord, JobView, Status, Webhook, WebhookEvent, now_ms,
-    rfc3339,
+    Attempt, Delivery, DeliveryStatus, JobRecord, Status, Webhook, WebhookEvent, WebhookMessage,
+    now_ms,
 };
 use super::queue::Queue;
 use super::runner::JobEntry;
@@ -471,20 +471,9 @@ fn delivery(record: &JobRecord, event: WebhookEvent) -> Option<&Delivery> {
         .find(|delivery| delivery.event == event)
 }
 
-/// The message body: the job as `GET /v1/jobs/{id}` shows it, without its webhook deliveries
-/// (which change with every attempt; the body stays the same).
+/// The message body ([`WebhookMessage`]).
 fn payload(record: &JobRecord, event: WebhookEvent) -> Bytes {
-    let mut job = record.clone();
-    job.webhook = None;
-    let at = match event {
-        WebhookEvent::Started => job.started_at,
-        WebhookEvent::Completed => job.completed_at,
-    };
-    let message = serde_json::json!({
-        "type": format!("job.{}", event.name()),
-        "timestamp": rfc3339(at.unwrap_or_else(now_ms)),
-        "data": JobView::new(&job, None),
-    });
+    let message = WebhookMessage::new(record, event);
     Bytes::from(serde_json::to_vec(&message).expect("views serialise"))
 }
 
