@@ -29,7 +29,9 @@ async fn results_are_named_after_the_upload_and_revalidate_with_304() {
         (&results["scene"], "image.json", "application/json"),
         (&results["albedo"], "image-albedo.svg", "image/svg+xml"),
     ] {
-        let url = url.as_str().unwrap_or_else(|| panic!("no URL for {name}: {job}"));
+        let url = url
+            .as_str()
+            .unwrap_or_else(|| panic!("no URL for {name}: {job}"));
         let first = server.get(url).await;
         assert_eq!(first.status, StatusCode::OK, "{url}: {}", first.text());
         assert_eq!(first.header("content-type"), Some(media_type), "{url}");
@@ -57,7 +59,9 @@ async fn results_are_named_after_the_upload_and_revalidate_with_304() {
         let weak = format!("\"other\", W/{etag}");
         let listed = server.get_with(url, &[("if-none-match", &weak)]).await;
         assert_eq!(listed.status, StatusCode::NOT_MODIFIED, "{url}");
-        let stale = server.get_with(url, &[("if-none-match", "\"stale\"")]).await;
+        let stale = server
+            .get_with(url, &[("if-none-match", "\"stale\"")])
+            .await;
         assert_eq!((stale.status, stale.body), (first.status, first.body));
     }
     // Another width is another file, with its own validator.
@@ -107,7 +111,9 @@ async fn a_json_submission_names_its_downloads_by_its_filename() {
     assert_eq!(created.status, StatusCode::CREATED, "{}", created.text());
     let id = created.json()["id"].as_str().unwrap().to_owned();
     let job = server
-        .wait_for(&id, Duration::from_secs(60), |job| job["status"] == "succeeded")
+        .wait_for(&id, Duration::from_secs(60), |job| {
+            job["status"] == "succeeded"
+        })
         .await;
     // Only the last path component is kept.
     assert_eq!(job["input_name"], "été 2026.jpg");
@@ -162,9 +168,16 @@ async fn client_keys_are_checked_with_api_keys_too_and_limits_need_no_key() {
             ],
         )
         .await;
-    assert_eq!(refused.status, StatusCode::BAD_REQUEST, "{}", refused.text());
+    assert_eq!(
+        refused.status,
+        StatusCode::BAD_REQUEST,
+        "{}",
+        refused.text()
+    );
     assert_eq!(problem(&refused)["code"], "bad-request");
-    let limits = server.request(Method::GET, "/v1/limits", &[], Vec::new()).await;
+    let limits = server
+        .request(Method::GET, "/v1/limits", &[], Vec::new())
+        .await;
     assert_eq!(limits.status, StatusCode::OK, "{}", limits.text());
     assert_eq!(limits.json()["defaults"]["paths"], 64);
     server.stop();
