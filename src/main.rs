@@ -2,7 +2,7 @@
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 mod cli;
 
 #[derive(Parser)]
@@ -27,6 +27,7 @@ enum Command {
     /// Run queued jobs from the shared PostgreSQL backend (`--database-url`), with no HTTP API.
     Worker(cli::serve::WorkerArgs),
     Openapi(cli::openapi::Args),
+    Reference(cli::reference::Args),
 }
 
 fn main() -> ExitCode {
@@ -39,6 +40,7 @@ fn main() -> ExitCode {
         Command::Serve(args) => return cli::serve::run(args),
         Command::Worker(args) => return cli::serve::work(args),
         Command::Openapi(args) => cli::openapi::run(&args),
+        Command::Reference(args) => cli::reference::run(&args, Cli::command()),
     };
     if let Err(error) = result {
         eprintln!("error: {error}");

@@ -1,4 +1,4 @@
-//! The README's "Clients" examples, run as written against a real `covec serve`: the batch
+//! The HTTP guide's client examples (docs/api.md), run as written against a real `covec serve`: the batch
 //! scripts (shell with curl and jq, Python with requests) against a server that requires an API
 //! key — every image written, a re-run answered from the idempotency keys, a wrong key failing
 //! the batch — and the webhook verification recipe inside a receiver of real deliveries.
@@ -19,17 +19,12 @@ use service_support::{DataDir, QUICK_PARAMS, Server, test_png};
 const KEY: &str = "readme-client-key";
 const IMAGES: [&str; 2] = ["first", "second"];
 
-/// The body of the code block tagged `lang` that contains `marker` in the README's "Clients"
-/// section.
+/// The body of the code block tagged `lang` that contains `marker` in the HTTP guide
+/// (docs/api.md).
 fn clients_example(lang: &str, marker: &str) -> String {
-    let readme = include_str!("../README.md");
-    let section = readme
-        .split("\n## Clients\n")
-        .nth(1)
-        .expect("a Clients section");
-    let section = section.split("\n## ").next().unwrap();
+    let guide = include_str!("../docs/api.md");
     let start = format!("```{lang}\n");
-    section
+    guide
         .split(&start)
         .skip(1)
         .map(|block| block.split("\n```").next().unwrap())
@@ -88,7 +83,7 @@ fn assert_svgs(out: &Path) {
     }
 }
 
-/// A keyed server on `dir`, and the README's batch example in `language` written to `file` in
+/// A keyed server on `dir`, and the HTTP guide's batch example in `language` written to `file` in
 /// a fresh workspace (checked to stay under 20 lines, as the issue asks).
 fn batch_example(dir: &DataDir, language: &str, file: &str) -> (Server, PathBuf, PathBuf) {
     let server = Server::start(&dir.0, &["--workers", "2", "--api-keys", KEY]);
@@ -164,7 +159,7 @@ async fn the_python_batch_example_vectorises_a_folder_once() {
     assert!(!refused.status.success(), "{}", report(&refused));
 }
 
-/// A webhook receiver in Python around the README's `verify`: it answers 204 to messages that
+/// A webhook receiver in Python around the HTTP guide's `verify`: it answers 204 to messages that
 /// verify (401 to others) and prints, for each, whether it verified and whether the same
 /// message with one byte added to the body would have.
 const RECEIVER: &str = r#"

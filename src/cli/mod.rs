@@ -6,6 +6,7 @@ pub mod eval;
 pub mod intrinsic;
 pub mod io;
 pub mod openapi;
+pub mod reference;
 pub mod render;
 pub mod serve;
 pub mod vectorize;

@@ -55,7 +55,7 @@ pub struct Args {
     pub json: Option<PathBuf>,
     /// An albedo map with the image's aspect ratio, e.g. from an intrinsic-decomposition
     /// network. Default: a classical intrinsic decomposition (surfaces grouped by chromaticity,
-    /// one lit colour each; README, "Illumination-aware layers").
+    /// one lit colour each; docs/design.md).
     #[arg(long, value_name = "A.png")]
     pub albedo: Option<PathBuf>,
     /// A directory of binary mask images (0 and one other value), one per segment, e.g. from
