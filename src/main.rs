@@ -27,6 +27,9 @@ enum Command {
     /// Run queued jobs from the shared PostgreSQL backend (`--database-url`), with no HTTP API.
     Worker(cli::serve::WorkerArgs),
     Openapi(cli::openapi::Args),
+    /// Ask a running `covec serve` (or a worker's --ops-addr) whether it is alive: exit 0 on
+    /// a 2xx answer (for a container's HEALTHCHECK).
+    Healthcheck(cli::healthcheck::Args),
 }
 
 fn main() -> ExitCode {
@@ -39,6 +42,7 @@ fn main() -> ExitCode {
         Command::Serve(args) => return cli::serve::run(args),
         Command::Worker(args) => return cli::serve::work(args),
         Command::Openapi(args) => cli::openapi::run(&args),
+        Command::Healthcheck(args) => cli::healthcheck::run(&args),
     };
     if let Err(error) = result {
         eprintln!("error: {error}");
