@@ -72,5 +72,5 @@ if len(defaults) > 1:
     errors.append(f"the Compose files default COVEC_IMAGE differently: {sorted(defaults)}")
 
 for error in errors:
-    print(f"check-deploy: {error}", file=sys.stderr)
+    print(f"check-image-name: {error}", file=sys.stderr)
 sys.exit(1 if errors else 0)

@@ -12,7 +12,7 @@
 #   3. `podman build --isolation=chroot` of the Dockerfile as it is;
 #   4. the runtime image's file system exported and started with chroot as its user, running
 #      its ENTRYPOINT, CMD, environment and HEALTHCHECK as `podman inspect` gives them (podman
-#      run is refused here: crun cannot set RLIMIT_NPROC; cgroups are in hybrid mode);
+#      run is refused here: crun cannot set the container's rlimits, `setrlimit` not permitted);
 #   5. one node: /healthz through the image's own health check, one job to `succeeded` and its
 #      SVG, the TLS roots, the image's size (total, and what the Dockerfile adds to its base);
 #   6. scaled: an API and a worker with the commands and settings of deploy/compose-scaled.yaml,
@@ -413,7 +413,7 @@ for _ in $(seq 300); do
     sleep 0.1
 done
 cat "$tls/ca.crt" >>"$bundle"
-passed "PostgreSQL $("$pg_bin/postgres" --version | awk '{print $NF}') on :$pg_port, moto on $s3 (its CA added to the exported image's trust store)"
+passed "PostgreSQL $("$pg_bin/postgres" --version | awk '{print $3}') on :$pg_port, moto on $s3 (its CA added to the exported image's trust store)"
 
 begin "scaled: deploy/compose-scaled.yaml's API and worker"
 api_port=$(free_port)
@@ -501,10 +501,13 @@ done
 curl -sS --fail --max-time 30 -o "$artifacts/scaled.svg" "http://127.0.0.1:$api_port/v1/jobs/$id/svg" ||
     fail "GET /v1/jobs/$id/svg"
 grep -q 'mix-blend-mode' "$artifacts/scaled.svg" || fail "the SVG of job $id has no blended layers"
-objects=$(s3_curl "$s3/covec-artefacts?list-type=2&prefix=jobs/$id/" | grep -o '<Key>' | wc -l)
-((objects > 0)) || fail "no object of job $id in the bucket"
-runs=$(psql -XAtq "postgres://covec@127.0.0.1:$pg_port/covec" -c 'SELECT count(*) FROM jobs')
-passed "job $id succeeded on the worker, SVG $(wc -c <"$artifacts/scaled.svg") bytes from the API, $objects objects in s3://covec-artefacts/jobs/$id/, $runs job record(s) in PostgreSQL"
+listing=$(s3_curl "$s3/covec-artefacts?list-type=2") || fail "listing the bucket"
+objects=$(grep -o "<Key>[^<]*/$id/[^<]*</Key>" <<<"$listing" | wc -l)
+((objects > 0)) || fail "no object of job $id in the bucket: $listing"
+record=$(psql -XAtq "postgres://covec@127.0.0.1:$pg_port/covec" -c "SELECT status FROM jobs WHERE id = '$id'") ||
+    fail "reading job $id's record in PostgreSQL"
+[[ $record == succeeded ]] || fail "job $id's record in PostgreSQL says \"$record\""
+passed "job $id succeeded on the worker, SVG $(wc -c <"$artifacts/scaled.svg") bytes from the API, $objects objects in the bucket, its record in PostgreSQL"
 
 begin "scaled: stop"
 kill "$api_pid" "$worker_pid"
@@ -517,7 +520,7 @@ passed "SIGTERM: both exited cleanly"
     printf '  %s\n' "${summary[@]}"
     echo "  not run here, and why:"
     echo "    - podman run / docker run / docker compose up: no Docker engine on these machines, and podman"
-    echo "      run is refused (crun: setrlimit RLIMIT_NPROC not permitted; cgroups v1 hybrid). The image's"
+    echo "      run is refused (crun cannot set the container's rlimits: setrlimit not permitted). The image's"
     echo "      file system ran under chroot as its USER instead: no namespaces, cgroups, read-only root,"
     echo "      dropped capabilities or seccomp as a runtime or Kubernetes would apply them."
     echo "    - the engine's HEALTHCHECK schedule (interval, retries): its command was run once, by hand."
