@@ -18,7 +18,7 @@ RUN apt-get update \
  && apt-get install -y --no-install-recommends pkg-config libsqlite3-dev \
  && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
-# The image's binary carries no debug info or symbols (a small part of its size). Only here: the
+# The image's binary carries no debug info or symbols (most of its size). Only here: the
 # repository's release profile keeps line tables for profiling the benchmarks. Set before the
 # dependency layer, so that both builds below use the same profile.
 ENV CARGO_PROFILE_RELEASE_DEBUG=false \
