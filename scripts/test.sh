@@ -65,6 +65,15 @@ if [[ -z "${COVEC_SKIP_FUZZ:-}" ]]; then
     scripts/fuzz.sh 20
 fi
 
+# The container image built from the Dockerfile and started: one node, then the scaled set-up's
+# API and worker (scripts/container-test.sh; docs/operations.md, "Container image").
+# COVEC_SKIP_CONTAINER=1 skips it, and says so.
+if [[ -z "${COVEC_SKIP_CONTAINER:-}" ]]; then
+    scripts/container-test.sh
+else
+    echo "test.sh: COVEC_SKIP_CONTAINER=1: the container image was neither built nor started" >&2
+fi
+
 # The web page end to end (issue 7), the same test in headless Debian Chromium and Firefox ESR
 # (tests/browser/driver.mjs), each against a real `covec serve` on a free loopback port with a
 # fresh data directory. Screenshots go to tests/artifacts/browser/BROWSER/. COVEC_SKIP_BROWSER=1

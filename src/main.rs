@@ -27,6 +27,9 @@ enum Command {
     /// Run queued jobs from the shared PostgreSQL backend (`--database-url`), with no HTTP API.
     Worker(cli::serve::WorkerArgs),
     Openapi(cli::openapi::Args),
+    /// Ask a running `covec serve` (or a worker's --ops-addr) whether it is alive: exit 0 on
+    /// a 2xx answer (for a container's HEALTHCHECK).
+    Healthcheck(cli::healthcheck::Args),
     Reference(cli::reference::Args),
 }
 
@@ -40,6 +43,7 @@ fn main() -> ExitCode {
         Command::Serve(args) => return cli::serve::run(args),
         Command::Worker(args) => return cli::serve::work(args),
         Command::Openapi(args) => cli::openapi::run(&args),
+        Command::Healthcheck(args) => cli::healthcheck::run(&args),
         Command::Reference(args) => cli::reference::run(&args, Cli::command()),
     };
     if let Err(error) = result {

@@ -483,6 +483,8 @@ async fn a_worker_serves_probes_and_metrics() {
     let ops = worker.ops_url.clone().unwrap();
     assert_eq!(http_get(&ops, "/healthz").0, 200);
     assert_eq!(http_get(&ops, "/readyz").0, 200);
+    // What a container's health check runs (the image has no curl).
+    assert!(healthcheck(&format!("{ops}/healthz")).status.success());
     let id = submit(&server, &test_png(32), &quick_params(3)).await;
     let job = ended(&server, &id, Duration::from_secs(60)).await;
     assert_eq!(job["status"], "succeeded", "{job}");
@@ -497,7 +499,21 @@ async fn a_worker_serves_probes_and_metrics() {
     let (status, body) = http_get(&ops, "/readyz");
     assert_eq!(status, 503, "{body}");
     assert!(body.contains("job database"), "{body}");
+    let not_ready = healthcheck(&format!("{ops}/readyz"));
+    assert!(!not_ready.status.success());
+    assert!(
+        String::from_utf8_lossy(&not_ready.stderr).contains("answered 503"),
+        "{not_ready:?}"
+    );
     postgres.start_again();
+}
+
+/// `covec healthcheck --url URL`.
+fn healthcheck(url: &str) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_covec"))
+        .args(["healthcheck", "--url", url])
+        .output()
+        .expect("covec healthcheck runs")
 }
 
 /// (status, body) of `GET url+path`, over a plain blocking connection.

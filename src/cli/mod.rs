@@ -3,6 +3,7 @@
 pub mod batch;
 pub mod edit;
 pub mod eval;
+pub mod healthcheck;
 pub mod intrinsic;
 pub mod io;
 pub mod openapi;

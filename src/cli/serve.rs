@@ -167,11 +167,14 @@ struct LogArgs {
     log_format: LogFormat,
 }
 
+/// The variable `covec serve --addr` reads, and so the address `covec healthcheck` asks.
+pub const ADDR_ENV: &str = "COVEC_ADDR";
+
 /// Every option also reads an environment variable (shown in `--help`); flags win.
 #[derive(Args, Debug)]
 pub struct ServeArgs {
     /// Address to listen on.
-    #[arg(long, env = "COVEC_ADDR", default_value_t = Config::default().addr)]
+    #[arg(long, env = ADDR_ENV, default_value_t = Config::default().addr)]
     addr: SocketAddr,
     #[command(flatten)]
     jobs: JobArgs,

@@ -34,6 +34,7 @@ mod worker;
 pub use conn::ConnectionLimits;
 pub use fair::{KeyLimits, Scheduling};
 pub use openapi::document as openapi_document;
+pub use ops::LIVENESS_PATH;
 pub use queue::QueueConfig;
 pub use submit::InputLimits;
 pub use webhooks::{WebhookConfig, WebhookConfigError};

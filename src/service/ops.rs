@@ -15,9 +15,12 @@ use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusRecorder
 use super::store::StoreError;
 use super::{AppState, Endpoint, endpoint};
 
+/// The liveness probe's path, on the API port and on a worker's `--ops-addr`.
+pub const LIVENESS_PATH: &str = "/healthz";
+
 pub fn endpoints() -> Vec<Endpoint> {
     vec![
-        endpoint(Method::GET, "/healthz", healthz),
+        endpoint(Method::GET, LIVENESS_PATH, healthz),
         endpoint(Method::GET, "/readyz", readyz),
         endpoint(Method::GET, "/metrics", metrics),
     ]

@@ -133,7 +133,7 @@ impl Workers {
             ops::metrics_text(&workers.runner.metrics, None, workers.slots)
         }
         Router::new()
-            .route("/healthz", get(ops::healthz))
+            .route(ops::LIVENESS_PATH, get(ops::healthz))
             .route("/readyz", get(ready))
             .route("/metrics", get(metrics))
             .with_state(Arc::clone(self))
