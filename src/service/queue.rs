@@ -784,6 +784,7 @@ impl Queue {
         );
         let outcome = postgres.cancel(&ended)?;
         if matches!(outcome, Canceled::Ended) {
+            info!(job_id = %entry.id, "canceled while queued");
             // The follower reads the depth again within FOLLOW_EVERY; until then a job
             // submitted right after this cancel must not be refused for the room it freed.
             let mut depth = lock(&self.shared_depth);

@@ -246,8 +246,12 @@ impl Workers {
                     self.postgres().settle(&token, &entry.snapshot())
                 });
                 match saved {
-                    Ok(true) => {}
-                    Ok(false) => warn!("the lease expired before the outcome was saved"),
+                    // One line per terminal write: what the chaos checker counts.
+                    Ok(true) => info!(status = entry.snapshot().status.name(), "outcome saved"),
+                    Ok(false) => warn!(
+                        "fenced: the lease is no longer this worker's (expired, or the job \
+                         deleted); the outcome write was refused"
+                    ),
                     Err(error) => warn!("saving the outcome: {error}"),
                 }
             }
@@ -284,7 +288,9 @@ impl Workers {
                     entry.request_cancel(CancelReason::User);
                 }
                 Ok(Beat::Lost) => {
-                    lost.store(true, Ordering::SeqCst);
+                    if !lost.swap(true, Ordering::SeqCst) {
+                        warn!("fenced: the lease is another worker's now; heartbeat refused");
+                    }
                     entry.request_cancel(CancelReason::Shutdown);
                 }
                 // The lease outlives a short outage; a long one ends in `Lost`.
