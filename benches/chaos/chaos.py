@@ -33,12 +33,12 @@ from traffic import History, Traffic, WebhookReceiver  # noqa: E402
 HOSTS = ["srv", "cli", "api1", "api2", "w1", "w2", "w3"]
 WEBHOOK_PORT = 8099
 
-# A job of about a second on one thread; long ones take a few (the partition and pause
+# A job of under a second on one thread; long ones take a few (the partition and pause
 # faults pick a worker running one).
 JOB_PARAMS = {"paths": 8, "max_size": 32, "iterations": {
-    "structure": 10, "reconstruction": 10, "refine_rounds": 1, "refine": 5, "polish": 5}}
-LONG_PARAMS = {"paths": 12, "max_size": 32, "iterations": {
-    "structure": 40, "reconstruction": 40, "refine_rounds": 1, "refine": 20, "polish": 20}}
+    "structure": 20, "reconstruction": 20, "refine_rounds": 1, "refine": 10, "polish": 10}}
+LONG_PARAMS = {"paths": 16, "max_size": 48, "iterations": {
+    "structure": 80, "reconstruction": 80, "refine_rounds": 2, "refine": 30, "polish": 30}}
 
 
 def parse_args():
@@ -137,7 +137,12 @@ def inner(args):
         at = started + warmup + i * every
         while time.time() < at:
             time.sleep(min(1.0, at - time.time()))
-        details = faults.inject(kind, cycle)
+        try:
+            details = faults.inject(kind, cycle)
+        except Exception as error:  # a harness failure: reported, and the run goes on
+            details = {"harness_error": f"{type(error).__name__}: {error}"}
+            history.record(op="harness_error", t0=time.time(), t1=time.time(), kind=kind,
+                           error=details["harness_error"])
         print(f"chaos: {time.time() - started:6.0f} s  {kind:12} {json.dumps(details)}",
               flush=True)
     while time.time() < started + duration:

@@ -217,8 +217,9 @@ def check(run_dir):
     came_back_within_lag = 0
     for job, deletion in deletes.items():
         after = deletion["t1"]
+        # Not SSE events: a stream open before the delete may still pass on its last change.
         shown = [(t0, replica, what) for t0, _, replica, _, what in seen.get(job, [])
-                 if t0 > after and what != "webhook"]
+                 if t0 > after and what not in ("webhook", "sse")]
         for op in ("result", "edit", "edit_svg"):
             shown += [(r["t0"], r["replica"], op) for r in by_op[op]
                       if r["job"] == job and r["t0"] > after and r.get("status") in (200, 201)]
@@ -282,6 +283,7 @@ def check(run_dir):
     sessions = collections.defaultdict(list)
     for record in by_op["sse"]:
         sessions[record["session"]].append(record)
+    ends = {r["session"]: r for r in by_op["sse_end"]}
     resumed = 0
     checked = 0
     for session, records in sessions.items():
@@ -292,9 +294,13 @@ def check(run_dir):
             continue
         checked += 1
         completed = sum(r.get("completed", 0) for r in records)
-        if completed != 1:
+        if session not in ends:
+            violations.append(f"session {session} ({job}, {len(records)} connections): still "
+                              f"open at the end, job ended {final[job]}")
+        elif completed != 1:
             violations.append(f"session {session} ({job}, {len(records)} connections): "
-                              f"{completed} completed events, job ended {final[job]}")
+                              f"{completed} completed events ({ends[session]['outcome']}), "
+                              f"job ended {final[job]}")
     report.promise("SSE streams resumed with Last-Event-ID miss no terminal state", checked,
                    violations)
     report.sse_sessions, report.sse_resumed = len(sessions), resumed
@@ -306,6 +312,10 @@ def check(run_dir):
     report.promise("no covec process exits on its own", len(processes), violations)
     report.other_exits = [f"{r['process']} (status {r['code']})" for r in by_op["exit"]
                           if r["process"] in ("postgres", "moto")]
+
+    violations = [f"{r['kind']}: {r['error']}" for r in by_op["harness_error"]]
+    report.promise("the harness injected every fault it meant to", len(by_op["fault"]),
+                   violations)
 
     report.stale_reads = stale_reads
     report.deleted_within_lag = came_back_within_lag
@@ -320,7 +330,8 @@ def soak_figures(report, lines):
     started = run["t0"]
     ops = collections.Counter(r["op"] for r in report.history
                               if r["op"] not in ("run", "end", "rss", "fault", "ack", "listed",
-                                                 "sse_event", "exit", "quiesced", "settled"))
+                                                 "sse_event", "sse_end", "exit", "harness_error", "quiesced",
+                                                 "settled"))
     lines.append("operations: " + ", ".join(f"{op} {n}" for op, n in sorted(ops.items()))
                  + f"; {sum(ops.values())} in all")
     faults = collections.Counter(r["kind"] for r in by_op["fault"])
@@ -361,7 +372,7 @@ def soak_figures(report, lines):
         lines.append("5xx answers: none")
     failures = collections.Counter(
         (r["op"], r["error"].split(":")[0], r.get("in_fault")) for r in report.history
-        if r.get("error") and r["op"] != "sse")
+        if r.get("error") and r["op"] not in ("sse", "harness_error"))
     if failures:
         lines.append("no answer: " + "; ".join(
             f"{op} {kind} {'in' if f else 'OUTSIDE'} fault windows: {n}"
@@ -417,8 +428,8 @@ def main(run_dir):
         lines.append(f"server exits (restarted): {', '.join(report.other_exits)}")
     violations = report.violations()
     operations = sum(1 for r in report.history if r["op"] not in (
-        "run", "end", "rss", "fault", "ack", "listed", "sse_event", "exit", "quiesced",
-        "settled"))
+        "run", "end", "rss", "fault", "ack", "listed", "sse_event", "sse_end", "exit", "harness_error",
+        "quiesced", "settled"))
     lines.append(f"chaos: {operations} operations, {len(report.by_op['fault'])} faults, "
                  f"{len(report.promises)} promises checked, violations: {violations}")
     text = "\n".join(lines)

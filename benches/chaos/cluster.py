@@ -195,7 +195,6 @@ class Cluster:
 
     def start_moto(self):
         self.moto.start()
-        import boto3
         deadline = time.monotonic() + 60
         while True:
             try:

@@ -74,7 +74,7 @@ class Faults:
     def __init__(self, cluster, net, history, lease, store_outage, rng):
         self.cluster, self.net, self.history = cluster, net, history
         self.lease = lease
-        self.store_outage = store_outage
+        self.outage_seconds = store_outage
         self.rng = rng
         self.tracker = JobTracker(cluster.workers)
         self.window_until = 0.0
@@ -142,13 +142,13 @@ class Faults:
         flavour = "hang" if index % 2 == 0 else "refuse"
         if flavour == "hang":
             self.cluster.moto.send(signal.SIGSTOP)
-            time.sleep(self.store_outage)
+            time.sleep(self.outage_seconds)
             self.cluster.moto.send(signal.SIGCONT)
         else:
             self.net.block("srv", None, S3_PORT, mode="reject", inbound=True)
-            time.sleep(self.store_outage)
+            time.sleep(self.outage_seconds)
             self.net.heal("srv")
-        return {"flavour": flavour, "held": self.store_outage}
+        return {"flavour": flavour, "held": self.outage_seconds}
 
     def pause(self, index):
         worker, job = self.busy_worker()
@@ -186,25 +186,17 @@ class Faults:
     def disk_full(self, index, hold=20):
         filler = os.path.join(self.cluster.pg_dir, "filler")
         written = 0
-        chunk = b"\0" * (1 << 20)
-        with open(filler, "wb") as f:
-            while True:
-                try:
-                    f.write(chunk)
-                    f.flush()
-                    written += len(chunk)
-                except OSError as error:
-                    if error.errno != errno.ENOSPC:
-                        raise
-                    break
-            # The last partial megabyte.
-            for size in (65536, 4096, 512):
+        # Unbuffered: every write meets the full disk itself.
+        with open(filler, "wb", buffering=0) as f:
+            for size in (1 << 20, 65536, 4096, 512):
+                chunk = b"\0" * size
                 while True:
                     try:
-                        f.write(b"\0" * size)
-                        f.flush()
+                        f.write(chunk)
                         written += size
-                    except OSError:
+                    except OSError as error:
+                        if error.errno != errno.ENOSPC:
+                            raise
                         break
         stats = os.statvfs(self.cluster.pg_dir)
         free = stats.f_bavail * stats.f_frsize

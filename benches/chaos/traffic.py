@@ -428,9 +428,11 @@ class Traffic:
             with self.lock:
                 self.sessions += 1
                 session = self.sessions
-            last_id, completed = None, 0
+            last_id, completed, outcome = None, 0, "gave up"
+            # Sessions go on after the traffic stops, until their job ends (the harness waits
+            # for them before it collects the final state).
             deadline = time.time() + 600
-            while time.time() < deadline and not self.stopping.is_set():
+            while time.time() < deadline:
                 replica, address = self.replica()
                 headers = {"accept": "text/event-stream"}
                 if last_id:
@@ -449,9 +451,15 @@ class Traffic:
                                     events=len(events), cut=ended == "cut",
                                     completed=sum(e["event"] == "completed" for e in events),
                                     in_fault=self.in_fault())
-                if completed or status == 404 or (status is not None and 400 <= status < 500):
+                if completed:
+                    outcome = "completed"
+                    break
+                if status is not None and 400 <= status < 500:
+                    outcome = f"answered {status}"
                     break
                 time.sleep(self.rng.uniform(0.1, 1.0))
+            self.history.record(op="sse_end", t0=time.time(), t1=time.time(), job=job,
+                                session=session, outcome=outcome, completed=completed)
         finally:
             self.streams.release()
 
@@ -523,7 +531,7 @@ class Traffic:
             job = self.rng.choice(recent)
             replica = self.rng.choice(sorted(self.apis))
             t0 = time.time()
-            status, error, view = None, None, None
+            status, error, view, code, retry_after = None, None, None, None, None
             try:
                 connection = connections.get(replica)
                 if connection is None:
@@ -535,6 +543,9 @@ class Traffic:
                 status = response.status
                 if status == 200:
                     view = json.loads(body)
+                elif status >= 500:
+                    problem = json.loads(body) if body.startswith(b"{") else {}
+                    code, retry_after = problem.get("code"), response.getheader("retry-after")
             except (OSError, http.client.HTTPException, ValueError) as e:
                 error = f"{type(e).__name__}: {e}"
                 connections.pop(replica, None)
@@ -543,6 +554,8 @@ class Traffic:
                           in_fault=self.in_fault())
             if error:
                 record["error"] = error
+            if status and status >= 500:
+                record["code"], record["retry_after"] = code, retry_after
             if view:
                 record["job_status"] = view["status"]
                 self.observe(job, view["status"])
