@@ -49,8 +49,10 @@ def load_logs(run_dir):
         process = name.removesuffix(".log")
         with open(os.path.join(logs, name), errors="replace") as f:
             for line in f:
+                # A process killed mid-line leaves it unended: the next line starts within it.
+                start = line.rfind('{"timestamp"')
                 try:
-                    entry = json.loads(line)
+                    entry = json.loads(line[max(start, 0):])
                 except ValueError:
                     continue
                 fields = entry.get("fields", {})
