@@ -181,14 +181,24 @@ async fn a_job_waits_out_an_object_store_outage_and_requests_get_503() {
     let long = submit(LONG_PARAMS).await;
     let quick = submit(QUICK_PARAMS).await;
     server
-        .wait_for(&long, Duration::from_secs(60), |job| job["status"] == "running")
+        .wait_for(&long, Duration::from_secs(60), |job| {
+            job["status"] == "running"
+        })
         .await;
     relay.down();
     assert_eq!(server.cancel(&long).await.status, StatusCode::ACCEPTED);
     let refused = server
-        .submit(&[("image", &image), ("params", QUICK_PARAMS.as_bytes())], &[])
+        .submit(
+            &[("image", &image), ("params", QUICK_PARAMS.as_bytes())],
+            &[],
+        )
         .await;
-    assert_eq!(refused.status, StatusCode::SERVICE_UNAVAILABLE, "{}", refused.text());
+    assert_eq!(
+        refused.status,
+        StatusCode::SERVICE_UNAVAILABLE,
+        "{}",
+        refused.text()
+    );
     assert_eq!(problem(&refused)["code"], "storage-unavailable");
     assert_eq!(refused.header("retry-after"), Some("5"));
     tokio::time::sleep(Duration::from_secs(15)).await;

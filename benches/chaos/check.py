@@ -240,20 +240,27 @@ def check(run_dir):
     report.promise("a deleted job never comes back", len(deletes), violations)
     report.deleted_leftovers = len(leftovers)
 
-    # 5. One job per Idempotency-Key.
+    # 5. One job per Idempotency-Key. A deleted job frees its key: a second job is right
+    # when the first is a tombstone at the end and a DELETE of it began (answered or not:
+    # its tombstone may commit before the answer, or without one reaching the client) before
+    # the second job's submission was answered.
     violations = []
     keys = collections.defaultdict(list)
     for record in by_op["ack"]:
         if record.get("key"):
             keys[record["key"]].append(record)
+    delete_began = collections.defaultdict(list)
+    for record in by_op["delete"]:
+        delete_began[record["job"]].append(record["t0"])
     for key, records in keys.items():
         jobs = []
         for record in sorted(records, key=lambda r: r["t0"]):
             if record["job"] in jobs:
                 continue
             for earlier in jobs:
-                deletion = deletes.get(earlier)
-                if deletion is None or deletion["t1"] > record["t0"]:
+                tombstone = earlier in rows and rows[earlier]["deleted"] or earlier not in rows
+                freed = tombstone and any(t0 < record["t1"] for t0 in delete_began[earlier])
+                if not freed:
                     violations.append(f"{key}: jobs {earlier} and {record['job']}")
             jobs.append(record["job"])
     live_keys = collections.Counter(row["idempotency_key"] for row in rows.values()
