@@ -14,7 +14,8 @@ use service_support::{DataDir, LONG_PARAMS, QUICK_PARAMS, Server, problem, test_
 const BUCKET: &str = "covec-test";
 const PREFIX: &str = "team/covec";
 
-/// A server with its artefacts in `s3`'s bucket; files with no job are orphans after 1 s.
+/// A server with its artefacts in `s3`'s bucket; files with no job are orphans after 1 s, and
+/// jobs may run long ([`LONG_PARAMS`]).
 fn start_covec(dir: &DataDir, s3: &S3Server) -> Server {
     start_covec_at(dir, s3, &s3.endpoint)
 }
@@ -38,6 +39,8 @@ fn start_covec_at(dir: &DataDir, s3: &S3Server, endpoint: &str) -> Server {
             &url,
             "--orphan-age",
             "1",
+            "--max-iterations",
+            "10000000",
         ],
         &env,
     )
