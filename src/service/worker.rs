@@ -241,10 +241,10 @@ impl Workers {
             settled
         });
         // Deleted while it ran, or while its outcome was being saved.
-        if settled == Settled::Deleted || entry.deleted.load(Ordering::SeqCst) {
-            if let Err(error) = self.runner.store.remove_artefacts(&entry.id) {
-                warn!("removing a deleted job's files (left to the sweep): {error}");
-            }
+        if (settled == Settled::Deleted || entry.deleted.load(Ordering::SeqCst))
+            && let Err(error) = self.runner.store.remove_artefacts(&entry.id)
+        {
+            warn!("removing a deleted job's files (left to the sweep): {error}");
         }
         lock(&self.running).retain(|running| !Arc::ptr_eq(running, &entry));
         self.changed.notify_all();
