@@ -351,6 +351,7 @@ const MAX_PAGE: usize = 100;
         (status = 400, response = Problem),
         (status = 401, response = Problem),
         (status = 500, response = Problem),
+        (status = 503, response = Unavailable),
     ),
 )]
 async fn list(
