@@ -7,7 +7,7 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 
-use super::fair::RateRefusal;
+use super::rate::RateRefusal;
 
 /// A response in the API document.
 type DocResponse = utoipa::openapi::RefOr<utoipa::openapi::Response>;
