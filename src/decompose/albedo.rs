@@ -1,5 +1,5 @@
 //! The grey Retinex albedo estimate: an edge-preserving shading estimate, and albedo = image /
-//! shading. Photo mode used it until issue 11 replaced it by [`super::intrinsic`]; it stays as
+//! shading. Photo mode now uses [`super::intrinsic`]; this stays as
 //! the baseline `covec eval --intrinsic` measures against, and for [`intensity`].
 //!
 //! Shading is taken as the log-luminance smoothed by a self-guided filter (He et al. 2010):

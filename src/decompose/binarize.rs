@@ -15,7 +15,7 @@ use crate::render::Image;
 /// three channels, to compare with colour segmentation gains). Unsorted.
 ///
 /// With `levels` > 1 each region's shadow and lit parts are binarised again at their own
-/// means (a documented departure, issue 11): a flat-per-surface albedo map leaves a whole
+/// means (a documented departure, docs/design.md): a flat-per-surface albedo map leaves a whole
 /// surface's shading to the illumination layer, and a sphere's core shadow and terminator are
 /// two levels of it, not one.
 pub fn binarize(target: &Image, regions: &[Mask], min_area: usize, levels: u32) -> Vec<Candidate> {

@@ -40,7 +40,7 @@ const MIN_ILLUMINANT_CHANNEL: f32 = 0.25;
 /// Felzenszwalb granularity on the corrected image (colour distances in [0, √3]); finer than
 /// the segmentation's, since grouping joins the pieces again. At 0.25 a dark superpixel could
 /// straddle an object's shaded rim and the contact shadow under it and keep its own dark
-/// albedo there (README, issue 11).
+/// albedo there.
 const SUPERPIXEL_K: f32 = 0.15;
 /// Chromaticity angle (radians) under which two adjacent superpixels are one surface, plus
 /// [`DARK_TOLERANCE`] / luminance for noise in the dark.

@@ -1,4 +1,4 @@
-//! Measuring a decomposition against known layers (issue 11): how close each vector layer is
+//! Measuring a decomposition against known layers: how close each vector layer is
 //! to the true albedo, shade and light of a scene, and how faithful a recolour by reference is.
 //! The scenes come from [`crate::synth::scenes`] or from any directory holding the
 //! [`TRUTH_FILES`].
@@ -52,12 +52,12 @@ pub const TRUTH_FILES: [&str; 7] = [
 const LABEL_GREY_STEP: u8 = 40;
 const LABEL_STEP: f32 = LABEL_GREY_STEP as f32 / 255.0;
 
-/// A pixel counts as a highlight where the true light exceeds this in some channel (issue 11).
+/// A pixel counts as a highlight where the true light exceeds this in some channel.
 pub const HIGHLIGHT_LEVEL: f32 = 0.2;
 /// A cast-shadow pixel counts as "shadow left in the albedo" where the albedo layer's luminance
-/// is below the true albedo's by more than this (issue 11).
+/// is below the true albedo's by more than this.
 pub const DARK_MARGIN: f32 = 0.15;
-/// Paths a reference recolour may change (the issue's K).
+/// Paths a reference recolour may change (the K of the recolour).
 pub const EDIT_PATHS: usize = 4;
 
 impl From<LitScene> for Truth {
@@ -185,7 +185,7 @@ impl Truth {
 pub enum AlbedoEstimate {
     /// The image itself (no decomposition).
     Image,
-    /// The grey Retinex estimate covec used before issue 11.
+    /// The grey Retinex estimate photo mode used before the intrinsic substitute.
     Retinex,
     /// covec's classical intrinsic decomposition (the photo-mode default).
     Intrinsic,

@@ -29,7 +29,7 @@ pub struct CoarseSettings {
     pub fine_rounds: u32,
     /// Share of the polish iterations run coarse. Default 0.75: on the 16 bench photos at 64
     /// paths, 120 coarse and 40 full-size iterations reach a lower error than 65 at full size
-    /// in about the same time (README, issue 12).
+    /// in about the same time.
     pub polish_share: f32,
 }
 

@@ -55,8 +55,8 @@ pub struct Budget {
 /// Share of the budget for structure paths, both layers together (LayerVec's 0.4); the rest is
 /// left to the refinement stage.
 pub const STRUCTURE_SHARE: f32 = 0.4;
-/// Share of the structure paths that go to the albedo layer in photo mode. Below half since
-/// issue 11: the albedo map is flat per surface, so a few paths hold it, and the shading
+/// Share of the structure paths that go to the albedo layer in photo mode. Below half: the
+/// albedo map is flat per surface, so a few paths hold it, and the shading
 /// inside surfaces needs the rest.
 pub const ALBEDO_SHARE: f32 = 0.4;
 /// Binarisation levels per albedo region in photo mode (see [`binarize`]).
@@ -104,8 +104,8 @@ pub fn simplify_tolerance(width: usize, height: usize) -> f32 {
 /// How many times [`simplify_tolerance`] an outline may stray where the image is flat. There a
 /// straighter outline costs the loss little, and the optimiser moves it anyway; on an edge it
 /// would cost the edge. Alone, with [`EDGE_CONTRAST`] 0.07 and 8×, on the 16 bench photos at 64
-/// paths: 24.4 → 19.2 cubic segments per path, MSE −1.1%; under the segment budget
-/// ([`super::segments`]) 0.1 and 10× do better (README, issue 12, for the settings tried).
+/// paths it took the segments per path down by a fifth for a lower MSE; under the segment
+/// budget ([`super::segments`]) 0.1 and 10× do better.
 pub const FLAT_TOLERANCE_FACTOR: f32 = 10.0;
 
 /// Luma gradient from which an outline point counts as on an edge and keeps the edge
@@ -247,11 +247,11 @@ pub(crate) fn run(
 /// each illumination fill becomes Σ I·A / Σ A² over its mask's visible part, per channel,
 /// clamped to [0, 1] (the paper's fill, mean image / albedo, weighs dark albedo too much).
 ///
-/// The albedo fills stay the map's means. Refitting them as well (alternating least squares,
-/// as covec did before issue 11) lets a sliver of albedo mask on a cast shadow's edge, under no
+/// The albedo fills stay the map's means. Refitting them as well (alternating least squares)
+/// lets a sliver of albedo mask on a cast shadow's edge, under no
 /// shade path, take the shadow's colour; the optimiser then grows it over the shadow. Held to
 /// the map, on the generated scenes: shadow left in the albedo at most 1% (was up to 24%), the
-/// albedo error lower on 8 of 10 scenes; bench photos as good or better (README, issue 11).
+/// albedo error lower on 8 of 10 scenes; bench photos as good or better.
 fn fit_illumination_fills(
     scene: &mut Scene,
     target: &Image,

@@ -1,4 +1,4 @@
-//! The segment budget (issue 12, a departure from the paper): paths start with few cubics and
+//! The segment budget (a departure from the paper): paths start with few cubics and
 //! the reconstruction splits the ones the loss pulls hardest, so that the scene ends with
 //! [`SEGMENTS_PER_PATH`] cubics per path on average and spends them where the image needs them.
 //!
@@ -16,8 +16,7 @@
 //!   (0.0632 → 0.0669) for no MSE.
 //!
 //! The mean is [`SEGMENTS_PER_PATH`] when the refinement fills the path budget, which it does
-//! unless it runs out of error regions. On the 16 bench photos at 64 paths (README, issue 12):
-//! 19.2 → 12.0 cubics per path, with the polish's coarse part (`super::coarse`) MSE −2.7%.
+//! unless it runs out of error regions.
 
 use super::regions::REGION_PATH_SEGMENTS;
 use crate::geom::bezier::split_half;
@@ -25,7 +24,7 @@ use crate::optim::Adam;
 use crate::render::PathGrad;
 use crate::scene::{Path, Point};
 
-/// Mean cubic segments per path the scene ends with (the issue's bar).
+/// Mean cubic segments per path the scene ends with.
 pub const SEGMENTS_PER_PATH: f32 = 12.0;
 
 /// Mean per path the init outlines start from, leaving the rest to the splits. With 10 (more

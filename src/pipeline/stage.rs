@@ -121,7 +121,7 @@ pub const SIMPLE_STAGES: &[StageSpec] = &[
 ];
 
 impl Iterations {
-    /// Every iteration of a run, summed over the stages (the defaults add up to 650).
+    /// Every iteration of a run, summed over the stages.
     pub fn total(&self) -> u64 {
         PHOTO_STAGES
             .iter()
@@ -279,7 +279,7 @@ pub(crate) fn hold_albedo_base(grads: &mut [PathGrad]) {
 
 /// What the reconstruction stage may change in the albedo layer: the base's geometry and
 /// opacity never ([`hold_albedo_base`]); in photo mode no path's colour or opacity either (a
-/// documented departure, issue 11). Left free there, `A·S` lets an albedo path darken or fade
+/// documented departure, docs/design.md). Left free there, `A·S` lets an albedo path darken or fade
 /// to explain a shadow or a shading gradient before the illumination paths have taken their
 /// shape, and that lighting stays in the albedo. Geometry still trains so edges follow the
 /// image; the polish stage, with all three layers in place, frees the fills again (on the

@@ -5,7 +5,7 @@
 //! white and multiplied onto the albedo); its colours may exceed 1 up to
 //! [`StructureSettings::illumination_cap`].
 //!
-//! Paths that keep to objects (issue 21): after the structure stage, terms added to the
+//! Paths that keep to objects: after the structure stage, terms added to the
 //! reconstruction, refinement and polish losses keep what the init stage built from masks there
 //! ([`Keep`]).
 
@@ -446,7 +446,7 @@ pub(crate) fn structure_loss(
     mask_loss + overlap
 }
 
-// ---- Paths that keep to objects (issue 21) ----
+// ---- Paths that keep to objects ----
 //
 // - **Albedo paths keep their masks**: the structure loss of the albedo mask groups (the
 //   structure stage's mask and overlap terms, same fixed colours) stays on, weighted (see
@@ -457,8 +457,8 @@ pub(crate) fn structure_loss(
 //   the region it was binarised in; for a new path, the region its error region lies in), and
 //   its coverage outside the parent costs a weight per pixel (mean over the canvas, as the
 //   image loss is) in the reconstruction, the refinement's training and the polish.
-// - Photo mode only; by default on the client's masks only (README, "Paths that keep to
-//   objects": on covec's own segmentation both terms cost bench MSE and did not raise VeC).
+// - Photo mode only; by default on the client's masks only (on covec's own segmentation
+//   both terms cost bench MSE and did not raise VeC).
 /// How strongly paths are held to their masks and regions; 0 turns a term off.
 #[derive(Clone, Debug, PartialEq)]
 pub struct KeepSettings {

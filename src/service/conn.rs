@@ -1,5 +1,5 @@
 //! Accepting connections: HTTP/1.1 with header and body read timeouts, a cap on open
-//! connections, and a shutdown that ends idle and half-open ones (issue 13).
+//! connections, and a shutdown that ends idle and half-open ones.
 //!
 //! `axum::serve` sets none of these, so a client that opens connections and sends nothing (or
 //! half a request) could hold them, and the process's file descriptors, forever.

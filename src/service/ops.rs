@@ -180,7 +180,7 @@ pub async fn record_http(State(state): State<AppState>, request: Request, next: 
 }
 
 /// The `method` label: clients may send any token as a method, and one series per token would
-/// grow `/metrics` without bound (issue 13), so unknown methods share the label `other`.
+/// grow `/metrics` without bound, so unknown methods share the label `other`.
 fn method_label(method: &Method) -> &'static str {
     const KNOWN: [&str; 7] = ["GET", "POST", "PUT", "DELETE", "PATCH", "HEAD", "OPTIONS"];
     KNOWN

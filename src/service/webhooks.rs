@@ -131,7 +131,7 @@ impl Webhooks {
             queue,
         });
         // On the shared backend deliveries are made by the replica that admitted the job, and
-        // taken over by another when that one stops (README, "Scaling out").
+        // taken over by another when that one stops (docs/operations.md).
         if webhooks.queue.is_shared() {
             tokio::spawn(Arc::clone(&webhooks).take_over());
         }

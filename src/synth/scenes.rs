@@ -1,7 +1,7 @@
 //! Ray-traced scenes with known intrinsic layers, richer than [`super::generate`]: spheres with
 //! curved Lambertian shading on a floor before a wall, cast shadows that cross several surfaces,
 //! coloured illuminants and sky light, additive specular highlights in the illuminant's colour,
-//! striped and textured albedo. The measurement of issue 11 (`covec eval --intrinsic`).
+//! striped and textured albedo. They are what `covec eval --intrinsic` measures.
 //!
 //! The image model is covec's: `image = clamp01(albedo · shade + light)` in sRGB values, with
 //! `shade` an RGB product of illuminant colour and geometry (≤ 1), and `light` the specular

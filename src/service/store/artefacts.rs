@@ -1,5 +1,5 @@
 //! Where a job's files live: plain files in the data directory (the default) or objects in an
-//! S3-compatible bucket (`--object-store s3://bucket/prefix`, issue 14).
+//! S3-compatible bucket (`--object-store s3://bucket/prefix`).
 //!
 //! Both keep one layout, `jobs/<id>/<name>`, and one promise: a reader sees a whole file or
 //! none. Files get it from a rename (temporary file, fsync, rename over the name); objects from

@@ -526,7 +526,7 @@ fn open_sqlite(root: &Path) -> Result<Records, StoreError> {
              WHERE json_valid(record)",
         )?;
     }
-    // Each query on records reads one of these (issue 20): nothing at start or in the
+    // Each query on records reads one of these: nothing at start or in the
     // periodic expiry walks every record.
     db.execute_batch(
         "CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs (owner, id);

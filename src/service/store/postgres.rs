@@ -1,4 +1,4 @@
-//! Job records, the queue and its leases in PostgreSQL (`--database-url`, issue 14), shared by
+//! Job records, the queue and its leases in PostgreSQL (`--database-url`), shared by
 //! API replicas (`covec serve`) and workers (`covec worker`).
 //!
 //! The queue is the `jobs` table: a worker claims the queued row the fair rule picks
