@@ -1,12 +1,13 @@
 #!/usr/bin/env python3
-"""Holds the library to its module layering (README, "Code map").
+"""Holds src/ to its module layering (docs/design.md, "Code map").
 
-Reads every `crate::…` and `super::…` path in src/ (the library; the binary's cli/ and main.rs
-sit on top of it) outside `#[cfg(test)]` code, resolves each to the file that defines it, and
+Reads every `crate::…` and `super::…` path outside `#[cfg(test)]` code of both crates in src/:
+the library (lib.rs and its modules) and the binary (main.rs and cli/, which sit on top of the
+library and reach it only as `covec::…`). Resolves each path to the file that defines it, and
 fails if
-  - a top-level module imports one of a higher layer (LAYERS below), or
-  - the files import each other in a cycle (a parent `mod.rs` naming its own children does not
-    count: that is how Rust declares them).
+  - a top-level module of the library imports one of a higher layer (LAYERS below), or
+  - the files of either crate import each other in a cycle (a parent `mod.rs` naming its own
+    children does not count: that is how Rust declares them).
 Prints the edges it refuses and exits 1; prints a one-line summary and exits 0 otherwise.
 """
 import re
@@ -31,11 +32,19 @@ RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
 SRC = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parent.parent / "src"
 
 
+# The binary crate's files: its root and the modules it declares.
+BINARY = ("main.rs", "cli")
+
+
 def module_of(path: Path) -> tuple:
     parts = list(path.relative_to(SRC).with_suffix("").parts)
-    if parts[-1] in ("mod", "lib"):
+    if parts[-1] in ("mod", "lib", "main"):
         parts.pop()
     return tuple(parts)
+
+
+def in_binary(path: Path) -> bool:
+    return path.relative_to(SRC).parts[0] in BINARY
 
 
 def code_of(path: Path) -> str:
@@ -60,16 +69,17 @@ def paths_in(code: str):
                     yield head + [p for p in item.split("::") if p and p != "self"]
 
 
-def main() -> int:
+def check(binary: bool):
+    """The refused edges of one crate, and its file and import counts."""
     files = {
         module_of(p): p
         for p in SRC.rglob("*.rs")
-        if p.relative_to(SRC).parts[0] not in ("cli", "main.rs") and p.name != "tests.rs"
+        if in_binary(p) == binary and p.name != "tests.rs"
     }
     modules = set(files)
     edges = set()
     for module, path in files.items():
-        is_dir_module = path.name in ("mod.rs", "lib.rs")
+        is_dir_module = path.name in ("mod.rs", "lib.rs", "main.rs")
         for parts in paths_in(code_of(path)):
             if parts[0] == "crate":
                 target = list(parts[1:])
@@ -88,6 +98,8 @@ def main() -> int:
 
     bad = []
     for a, b in sorted(edges):
+        if binary:
+            break  # the binary's modules are subcommands side by side: no layers, no cycles
         ra, rb = RANK.get(a[0]), RANK.get(b[0])
         if ra is None or rb is None:
             bad.append(f"{'::'.join(a)} -> {'::'.join(b)}: module missing from LAYERS")
@@ -114,10 +126,20 @@ def main() -> int:
         if node not in state:
             visit(node)
 
+    return bad, len(modules), len(edges)
+
+
+def main() -> int:
+    bad, files, imports = [], 0, 0
+    for binary in (False, True):
+        crate_bad, crate_files, crate_imports = check(binary)
+        bad += crate_bad
+        files += crate_files
+        imports += crate_imports
     if bad:
         print("check-modules: the layering is broken:", *bad, sep="\n  ")
         return 1
-    print(f"check-modules: {len(modules)} files, {len(edges)} imports, layered and acyclic")
+    print(f"check-modules: {files} files, {imports} imports, layered and acyclic")
     return 0
 
 

@@ -36,10 +36,10 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Vectorize(args) => cli::vectorize::run(&args).map_err(|e| e.to_string()),
+        Command::Vectorize(args) => cli::vectorize(&args),
         Command::Edit(args) => cli::edit::run(&args).map_err(|e| e.to_string()),
         Command::Render(args) => cli::render::run(&args).map_err(|e| e.to_string()),
-        Command::Eval(args) => cli::eval::run(&args).map_err(|e| e.to_string()),
+        Command::Eval(args) => cli::eval(&args),
         Command::Serve(args) => return cli::serve::run(args),
         Command::Worker(args) => return cli::serve::work(args),
         Command::Openapi(args) => cli::openapi::run(&args),

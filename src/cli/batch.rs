@@ -29,8 +29,6 @@ pub enum BatchError {
         "{0} applies to one image; a batch writes <name>.svg and <name>.json into the -o directory"
     )]
     PerImageOption(&'static str),
-    #[error("--threads and --jobs apply to a batch (several images or a directory)")]
-    OneImage,
     #[error("{first} and {second} would both be written as {name}.svg")]
     NameClash {
         first: PathBuf,

@@ -62,8 +62,8 @@ pub struct Args {
     #[arg(long, value_name = "DIR")]
     pub write_scenes: Option<PathBuf>,
     /// A directory with one sub-directory of binary semantic masks per image, named by the
-    /// image's file stem: adds VeC and the median IoU of albedo paths to masks (README, "Paths
-    /// that keep to objects").
+    /// image's file stem: adds VeC and the median IoU of albedo paths to masks (docs/design.md,
+    /// "Departures from the paper").
     #[arg(long, value_name = "DIR")]
     pub semantic_masks: Option<PathBuf>,
     /// Also give those masks to the pipeline, as `covec vectorize --masks` does.
@@ -162,13 +162,9 @@ impl Row {
     }
 }
 
+/// Scores covec on images (`--intrinsic` and `--write-scenes` are [`super::intrinsic`]'s;
+/// [`super::eval`] picks).
 pub fn run(args: &Args) -> Result<(), Error> {
-    if let Some(dir) = &args.write_scenes {
-        return super::intrinsic::write_scenes(dir, args.scene_size);
-    }
-    if args.intrinsic {
-        return super::intrinsic::run(args);
-    }
     let mut images = Vec::new();
     for input in &args.inputs {
         collect_images(input, &mut images)?;

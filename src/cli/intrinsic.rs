@@ -1,5 +1,5 @@
 //! `covec eval --intrinsic` and `--write-scenes`: the decomposition scored against known layers
-//! (issue 11). One CSV row per scene, method and budget; a markdown summary per scene on
+//! (`covec::eval::intrinsic`). One CSV row per scene, method and budget; a markdown summary per scene on
 //! standard error.
 
 use std::fmt::Write as _;
@@ -24,7 +24,7 @@ enum Run {
     PhotoRetinex,
     /// The albedo-only variant: the no-decomposition baseline.
     Simple,
-    /// Photo mode given the scene's true object labels as masks (issue 21), when known.
+    /// Photo mode given the scene's true object labels as masks, when known.
     PhotoLabels,
 }
 

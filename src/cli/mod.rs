@@ -11,3 +11,24 @@ pub mod reference;
 pub mod render;
 pub mod serve;
 pub mod vectorize;
+
+/// `covec vectorize`: one image file, or a batch for a directory or several inputs.
+pub fn vectorize(args: &vectorize::Args) -> Result<(), String> {
+    match args.inputs.as_slice() {
+        [input] if !input.is_dir() => vectorize::run(input, args).map_err(|e| e.to_string()),
+        _ => batch::run(args).map_err(|e| e.to_string()),
+    }
+}
+
+/// `covec eval`: quality on images, or with `--intrinsic` / `--write-scenes` the
+/// decomposition on scenes with known layers.
+pub fn eval(args: &eval::Args) -> Result<(), String> {
+    let result = if let Some(dir) = &args.write_scenes {
+        intrinsic::write_scenes(dir, args.scene_size)
+    } else if args.intrinsic {
+        intrinsic::run(args)
+    } else {
+        eval::run(args)
+    };
+    result.map_err(|e| e.to_string())
+}

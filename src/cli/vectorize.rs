@@ -117,8 +117,8 @@ pub enum Error {
     Pipeline(#[from] pipeline::Error),
     #[error("--width sets the size of a PNG output; give -o a .png path")]
     WidthWithoutPng,
-    #[error(transparent)]
-    Batch(#[from] super::batch::BatchError),
+    #[error("--threads and --jobs apply to a batch (several images or a directory)")]
+    BatchOptionForOneImage,
     #[error(
         "--flatten applies to an SVG output (a PDF is always flat, a PNG or JSON has no paths)"
     )]
@@ -127,15 +127,10 @@ pub enum Error {
     JsonTwice,
 }
 
-pub fn run(args: &Args) -> Result<(), Error> {
-    let [input] = args.inputs.as_slice() else {
-        return Ok(super::batch::run(args)?);
-    };
-    if input.is_dir() {
-        return Ok(super::batch::run(args)?);
-    }
+/// Vectorises one image file (a batch is [`super::batch::run`]; [`super::vectorize`] picks).
+pub fn run(input: &Path, args: &Args) -> Result<(), Error> {
     if args.threads.is_some() || args.jobs.is_some() {
-        return Err(super::batch::BatchError::OneImage.into());
+        return Err(Error::BatchOptionForOneImage);
     }
     let observer = CliObserver::new(args.previews.clone());
     if let Some(dir) = &args.previews {
