@@ -74,6 +74,15 @@ else
     echo "test.sh: COVEC_SKIP_CONTAINER=1: the container image was neither built nor started" >&2
 fi
 
+# The chaos harness of the shared backend (benches/chaos/, docs/operations.md): two API
+# replicas and three workers in network namespaces on PostgreSQL and moto, 3 minutes of mixed
+# traffic with every fault kind once (partitions, the object store down, SIGSTOP, kill -9,
+# PostgreSQL restarted, its disk full), then the checker; fails on any violation (about 4 min).
+# COVEC_SKIP_CHAOS=1 skips it.
+if [[ -z "${COVEC_SKIP_CHAOS:-}" ]]; then
+    scripts/chaos.sh --minutes 3
+fi
+
 # The web page end to end (issue 7), the same test in headless Debian Chromium and Firefox ESR
 # (tests/browser/driver.mjs), each against a real `covec serve` on a free loopback port with a
 # fresh data directory. Screenshots go to tests/artifacts/browser/BROWSER/. COVEC_SKIP_BROWSER=1

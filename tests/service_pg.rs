@@ -324,14 +324,21 @@ async fn a_database_restart_loses_no_job() {
         .await;
     postgres.stop();
     // The replica's copy still answers for the job; one it has never seen cannot be looked
-    // up, which is an error, not a 404 (the job may well exist).
+    // up, which is an error, not a 404 (the job may well exist): 503 `storage-unavailable`
+    // with Retry-After, so a client retries.
     let known = server.get(&format!("/v1/jobs/{id}")).await;
     assert_eq!(known.status, StatusCode::OK, "{}", known.text());
     let unknown = server
         .get(&format!("/v1/jobs/job_{}", "0".repeat(32)))
         .await;
-    assert_eq!(unknown.status, StatusCode::INTERNAL_SERVER_ERROR);
-    assert_eq!(problem(&unknown)["code"], "internal", "{}", unknown.text());
+    assert_eq!(unknown.status, StatusCode::SERVICE_UNAVAILABLE);
+    assert_eq!(
+        problem(&unknown)["code"],
+        "storage-unavailable",
+        "{}",
+        unknown.text()
+    );
+    assert_eq!(unknown.header("retry-after"), Some("5"));
     postgres.start_again();
     let job = ended(&server, &id, Duration::from_secs(120)).await;
     assert_eq!(job["status"], "succeeded", "{job}");

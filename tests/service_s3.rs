@@ -8,16 +8,24 @@ use std::process::Command;
 use std::time::Duration;
 
 use hyper::{Method, StatusCode};
-use service_support::s3::S3Server;
-use service_support::{DataDir, Server};
+use service_support::s3::{Relay, S3Server};
+use service_support::{DataDir, LONG_PARAMS, QUICK_PARAMS, Server, problem, test_png};
 
 const BUCKET: &str = "covec-test";
 const PREFIX: &str = "team/covec";
 
-/// A server with its artefacts in `s3`'s bucket; files with no job are orphans after 1 s.
+/// A server with its artefacts in `s3`'s bucket; files with no job are orphans after 1 s, and
+/// jobs may run long ([`LONG_PARAMS`]).
 fn start_covec(dir: &DataDir, s3: &S3Server) -> Server {
+    start_covec_at(dir, s3, &s3.endpoint)
+}
+
+/// [`start_covec`] reaching the bucket through `endpoint` (a [`Relay`]'s).
+fn start_covec_at(dir: &DataDir, s3: &S3Server, endpoint: &str) -> Server {
     let url = format!("s3://{BUCKET}/{PREFIX}");
-    let env = s3.env();
+    let mut env = s3.env();
+    env.retain(|(name, _)| name != "AWS_ENDPOINT");
+    env.push(("AWS_ENDPOINT".to_owned(), endpoint.to_owned()));
     let env: Vec<_> = env
         .iter()
         .map(|(name, value)| (name.as_str(), value.as_str()))
@@ -31,6 +39,8 @@ fn start_covec(dir: &DataDir, s3: &S3Server) -> Server {
             &url,
             "--orphan-age",
             "1",
+            "--max-iterations",
+            "10000000",
         ],
         &env,
     )
@@ -113,13 +123,16 @@ async fn an_unreachable_bucket_is_not_ready_and_fails_results_with_a_problem() {
         "{}",
         ready.text()
     );
+    // The store out of reach is a failure of the moment: 503 with Retry-After, not 500.
     let svg = server.get(&format!("/v1/jobs/{id}/svg")).await;
     assert_eq!(
         svg.status,
-        StatusCode::INTERNAL_SERVER_ERROR,
+        StatusCode::SERVICE_UNAVAILABLE,
         "{}",
         svg.text()
     );
+    assert_eq!(problem(&svg)["code"], "storage-unavailable");
+    assert_eq!(svg.header("retry-after"), Some("5"));
     assert_eq!(
         svg.header("content-type"),
         Some("application/problem+json"),
@@ -142,4 +155,64 @@ fn a_bad_object_store_url_stops_the_server_with_one_line() {
     assert!(!output.status.success());
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(stderr.contains("only s3://bucket/prefix"), "{stderr}");
+}
+
+/// The object store down for longer than object_store's own retries of one request (10 s)
+/// while a job is about to read its inputs: the job waits for the store and succeeds instead
+/// of failing with `internal`, and meanwhile a request that needs the store is refused with
+/// 503 `storage-unavailable` and `Retry-After` (not 500), so clients know to retry.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_job_waits_out_an_object_store_outage_and_requests_get_503() {
+    let s3 = S3Server::start();
+    make_bucket(&s3);
+    let relay = Relay::start(&s3.endpoint);
+    let dir = DataDir::new("s3-outage");
+    let server = start_covec_at(&dir, &s3, &relay.endpoint);
+    let image = test_png(32);
+    let submit = |params: &'static str| {
+        let server = &server;
+        let image = image.clone();
+        async move {
+            let reply = server
+                .submit(&[("image", &image), ("params", params.as_bytes())], &[])
+                .await;
+            assert_eq!(reply.status, StatusCode::CREATED, "{}", reply.text());
+            reply.json()["id"].as_str().unwrap().to_owned()
+        }
+    };
+    // The long job holds the one worker, so the quick one starts only once the store is down.
+    let long = submit(LONG_PARAMS).await;
+    let quick = submit(QUICK_PARAMS).await;
+    server
+        .wait_for(&long, Duration::from_secs(60), |job| {
+            job["status"] == "running"
+        })
+        .await;
+    relay.down();
+    assert_eq!(server.cancel(&long).await.status, StatusCode::ACCEPTED);
+    let refused = server
+        .submit(
+            &[("image", &image), ("params", QUICK_PARAMS.as_bytes())],
+            &[],
+        )
+        .await;
+    assert_eq!(
+        refused.status,
+        StatusCode::SERVICE_UNAVAILABLE,
+        "{}",
+        refused.text()
+    );
+    assert_eq!(problem(&refused)["code"], "storage-unavailable");
+    assert_eq!(refused.header("retry-after"), Some("5"));
+    tokio::time::sleep(Duration::from_secs(15)).await;
+    relay.up();
+    let job = server
+        .wait_for(&quick, Duration::from_secs(120), |job| {
+            job["status"] != "queued" && job["status"] != "running"
+        })
+        .await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let svg = server.get(&format!("/v1/jobs/{quick}/svg")).await;
+    assert_eq!(svg.status, StatusCode::OK, "{}", svg.text());
+    server.stop();
 }

@@ -7,7 +7,7 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 
-use super::fair::RateRefusal;
+use super::rate::RateRefusal;
 
 /// A response in the API document.
 type DocResponse = utoipa::openapi::RefOr<utoipa::openapi::Response>;
@@ -67,19 +67,21 @@ pub struct Unavailable;
 impl<'r> utoipa::ToResponse<'r> for Unavailable {
     fn response() -> (&'r str, DocResponse) {
         let description = "The queue is full (`queue-full`), every decode slot stayed busy \
-            (`decode-busy`) or the server is shutting down (`shutting-down`); retry after \
-            `Retry-After` seconds.";
+            (`decode-busy`), the server is shutting down (`shutting-down`) or the job storage \
+            (database, object store or disk) cannot be reached or is full for now \
+            (`storage-unavailable`); retry after `Retry-After` seconds.";
         ("Unavailable", problem_response(description, true))
     }
 }
 
 /// The problems of every operation on one job (`/v1/jobs/{id}…`) in the API document: a
-/// malformed id (400), no key (401), no such job (404) and an expired one (410).
+/// malformed id (400), no key (401), no such job (404), an expired one (410), and the job
+/// storage out of reach (503 `storage-unavailable`).
 pub struct JobProblems;
 
 impl utoipa::IntoResponses for JobProblems {
     fn responses() -> std::collections::BTreeMap<String, DocResponse> {
-        problem_statuses(&[400, 401, 404, 410])
+        with_unavailable(problem_statuses(&[400, 401, 404, 410]))
     }
 }
 
@@ -88,8 +90,17 @@ pub struct ResultProblems;
 
 impl utoipa::IntoResponses for ResultProblems {
     fn responses() -> std::collections::BTreeMap<String, DocResponse> {
-        problem_statuses(&[400, 401, 404, 409, 410])
+        with_unavailable(problem_statuses(&[400, 401, 404, 409, 410]))
     }
+}
+
+/// `responses` and 503 ([`Unavailable`]).
+fn with_unavailable(
+    mut responses: std::collections::BTreeMap<String, DocResponse>,
+) -> std::collections::BTreeMap<String, DocResponse> {
+    let unavailable = utoipa::openapi::Ref::from_response_name("Unavailable");
+    responses.insert("503".to_owned(), unavailable.into());
+    responses
 }
 
 /// The [`Problem`] response under each of `statuses`.
@@ -195,6 +206,8 @@ pub enum ApiError {
     DecodeBusy(u64),
     #[error("the server is shutting down")]
     ShuttingDown,
+    #[error("the job storage cannot be reached now ({0}); retry shortly")]
+    StorageUnavailable(String),
     #[error("job `{0}` has status `{1}`; results exist once it has succeeded")]
     NotReady(String, &'static str),
     #[error("the results of job `{0}` were removed after the retention period")]
@@ -237,7 +250,9 @@ impl ApiError {
             | WebhookHostNotAllowed(_)
             | IdempotencyMismatch => StatusCode::UNPROCESSABLE_ENTITY,
             KeyQueueFull { .. } | RateLimited(_) => StatusCode::TOO_MANY_REQUESTS,
-            QueueFull(..) | DecodeBusy(_) | ShuttingDown => StatusCode::SERVICE_UNAVAILABLE,
+            QueueFull(..) | DecodeBusy(_) | ShuttingDown | StorageUnavailable(_) => {
+                StatusCode::SERVICE_UNAVAILABLE
+            }
             NotReady(..) => StatusCode::CONFLICT,
             DataRemoved(_) | JobExpired(_) => StatusCode::GONE,
             TimeLimit(_) => StatusCode::REQUEST_TIMEOUT,
@@ -277,6 +292,7 @@ impl ApiError {
             RateLimited(_) => "rate-limited",
             DecodeBusy(_) => "decode-busy",
             ShuttingDown => "shutting-down",
+            StorageUnavailable(_) => "storage-unavailable",
             NotReady(..) => "job-not-succeeded",
             DataRemoved(_) => "data-removed",
             TimeLimit(_) => "time-limit",
@@ -296,7 +312,7 @@ impl ApiError {
                 ..
             } => Some(*seconds),
             ApiError::RateLimited(refusal) => Some(refusal.retry_after),
-            ApiError::ShuttingDown => Some(5),
+            ApiError::ShuttingDown | ApiError::StorageUnavailable(_) => Some(5),
             _ => None,
         }
     }

@@ -14,12 +14,12 @@ use serde::Deserialize;
 
 use super::auth::{Client, Owner};
 use super::error::{ApiError, JobProblems, Problem, TooManyRequests, Unavailable};
-use super::fair::RateState;
 use super::model::{
     Idempotency, IdempotentReplayed, InputManifest, JobEvent, JobId, JobList, JobRecord, JobView,
     Status, is_job_id, new_job_id,
 };
 use super::queue::Admission;
+use super::rate::RateState;
 use super::runner::JobEntry;
 use super::submit::{self, JsonSubmission, MultipartSubmission, UploadQuery, decode_inputs};
 use super::{AppState, Endpoint, endpoint};
@@ -351,6 +351,7 @@ const MAX_PAGE: usize = 100;
         (status = 400, response = Problem),
         (status = 401, response = Problem),
         (status = 500, response = Problem),
+        (status = 503, response = Unavailable),
     ),
 )]
 async fn list(

@@ -24,6 +24,7 @@ mod model;
 mod openapi;
 mod ops;
 mod queue;
+mod rate;
 mod results;
 mod runner;
 mod store;

@@ -498,7 +498,8 @@ record retention and its record is deleted; an id that never existed is `job-not
 `too-many-masks`, `too-many-changes`, `inputs-too-large`, `bad-request`, `bad-query`,
 `undecodable-image`, `truncated-image`, `invalid-params`, `invalid-input`, `webhook-host-not-allowed`,
 `idempotency-key-reused`, `key-queue-full`, `rate-limited`, `queue-full`, `decode-busy`,
-`shutting-down`,
+`shutting-down`, `storage-unavailable` (503: the job database or store cannot be reached, or
+is full, for now),
 `job-not-succeeded`, `data-removed`, `result-corrupt` (a stored result that no longer
 matches the digest recorded when it was written), `internal`, and in a failed job's `error`
 also `time-limit`, `pipeline-crashed`, `workers-lost` (PostgreSQL backend: every

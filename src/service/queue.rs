@@ -197,14 +197,19 @@ impl State {
     }
 }
 
-/// Webhook delivery attempts made so far.
-fn deliveries_made(webhook: &Option<Webhook>) -> usize {
-    webhook.as_ref().map_or(0, |webhook| {
-        webhook
+/// How far a job's webhook deliveries have got: attempts made, then deliveries begun (a
+/// delivery is begun, pending with no attempt yet, before its first attempt). The follower
+/// keeps the copy's deliveries when they are further on than the stored ones: the replica
+/// delivering them writes the stored ones after each step, so those lag; a begun delivery
+/// replaced by a stored record read before it was saved would never be attempted.
+fn webhook_progress(webhook: &Option<Webhook>) -> (usize, usize) {
+    webhook.as_ref().map_or((0, 0), |webhook| {
+        let attempts = webhook
             .deliveries
             .iter()
             .map(|delivery| delivery.attempts.len())
-            .sum()
+            .sum();
+        (attempts, webhook.deliveries.len())
     })
 }
 
@@ -360,7 +365,8 @@ impl Queue {
                         entry.record.send_if_modified(|current| {
                             let mut record = *record;
                             // Deliveries are made here by this copy: the stored ones may lag.
-                            if deliveries_made(&current.webhook) > deliveries_made(&record.webhook)
+                            if webhook_progress(&current.webhook)
+                                > webhook_progress(&record.webhook)
                             {
                                 record.webhook = current.webhook.clone();
                             }
@@ -784,6 +790,7 @@ impl Queue {
         );
         let outcome = postgres.cancel(&ended)?;
         if matches!(outcome, Canceled::Ended) {
+            info!(job_id = %entry.id, "canceled while queued");
             // The follower reads the depth again within FOLLOW_EVERY; until then a job
             // submitted right after this cancel must not be refused for the room it freed.
             let mut depth = lock(&self.shared_depth);
@@ -1045,5 +1052,56 @@ impl Queue {
             return Err(ApiError::CorruptResult(name.to_owned()));
         }
         Ok(bytes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::service::model::{Attempt, Delivery, DeliveryStatus, WebhookEvent};
+
+    fn delivery(event: WebhookEvent, attempts: usize, status: DeliveryStatus) -> Delivery {
+        let attempt = Attempt {
+            at: 1,
+            status_code: Some(204),
+            error: None,
+        };
+        Delivery {
+            id: format!("msg_{}", event.name()),
+            event,
+            status,
+            attempts: vec![attempt; attempts],
+            next_attempt_at: None,
+        }
+    }
+
+    /// The race the chaos harness found (one completion webhook lost in an hour): the
+    /// delivering replica begins the `completed` delivery (pending, no attempt yet) while the
+    /// follower brings in the stored record of the job's end, read before that delivery was
+    /// saved, with as many attempts. The copy's deliveries must win, or the begun delivery
+    /// vanishes and is never attempted.
+    #[test]
+    fn a_begun_delivery_outranks_a_stored_record_without_it() {
+        let webhook = |deliveries| {
+            Some(Webhook {
+                url: "http://hooks.example/".into(),
+                events: vec![WebhookEvent::Started, WebhookEvent::Completed],
+                deliveries,
+            })
+        };
+        let started = delivery(WebhookEvent::Started, 2, DeliveryStatus::Delivered);
+        let stored = webhook(vec![started.clone()]);
+        let begun = webhook(vec![
+            started.clone(),
+            delivery(WebhookEvent::Completed, 0, DeliveryStatus::Pending),
+        ]);
+        assert!(webhook_progress(&begun) > webhook_progress(&stored));
+        // An attempt made counts before deliveries begun.
+        let attempted = webhook(vec![delivery(
+            WebhookEvent::Started,
+            3,
+            DeliveryStatus::Delivered,
+        )]);
+        assert!(webhook_progress(&attempted) > webhook_progress(&begun));
     }
 }

@@ -224,51 +224,68 @@ impl Workers {
         let entry = JobEntry::new(record);
         lock(&self.running).push(Arc::clone(&entry));
         let lost = AtomicBool::new(false);
+        let ended = AtomicBool::new(false);
         let done = (Mutex::new(false), Condvar::new());
         let settled = std::thread::scope(|scope| {
-            scope.spawn(|| self.heartbeats(&entry, &token, &lost, &done));
+            scope.spawn(|| self.heartbeats(&entry, &token, &lost, &ended, &done));
             let settled = self.runner.run(&entry, pool);
+            // The lease is kept (heartbeats go on, the record no longer in them) until the
+            // outcome is saved: a database that takes no writes for a while (restarting, its
+            // disk full) then costs no re-run, as long as it is back within the lease.
+            ended.store(true, Ordering::SeqCst);
+            if settled != Settled::Deleted {
+                self.save_outcome(&entry, &token, &lost);
+            }
             *lock(&done.0) = true;
             done.1.notify_all();
             settled
         });
-        match settled {
-            Settled::Deleted => {
-                if let Err(error) = self.runner.store.remove_artefacts(&entry.id) {
-                    warn!("removing a deleted job's files (left to the sweep): {error}");
-                }
-            }
-            Settled::Ended | Settled::Interrupted if lost.load(Ordering::SeqCst) => {
-                warn!("another worker holds the job now: this run's outcome is dropped");
-            }
-            Settled::Ended | Settled::Interrupted => {
-                let saved = retry_transient("saving the outcome", || {
-                    self.postgres().settle(&token, &entry.snapshot())
-                });
-                match saved {
-                    Ok(true) => {}
-                    Ok(false) => warn!("the lease expired before the outcome was saved"),
-                    Err(error) => warn!("saving the outcome: {error}"),
-                }
-            }
+        // Deleted while it ran, or while its outcome was being saved.
+        if (settled == Settled::Deleted || entry.deleted.load(Ordering::SeqCst))
+            && let Err(error) = self.runner.store.remove_artefacts(&entry.id)
+        {
+            warn!("removing a deleted job's files (left to the sweep): {error}");
         }
         lock(&self.running).retain(|running| !Arc::ptr_eq(running, &entry));
         self.changed.notify_all();
     }
 
-    /// Renews the lease and stores the record every [`BEAT`] until `done`; stops the run when
-    /// the job is canceled, deleted or taken over.
+    /// Saves the record a run left (ended, or queued again), fenced by the lease's token,
+    /// retrying while the database cannot take it ([`retry_transient`]).
+    fn save_outcome(&self, entry: &JobEntry, token: &str, lost: &AtomicBool) {
+        if lost.load(Ordering::SeqCst) {
+            warn!("another worker holds the job now: this run's outcome is dropped");
+            return;
+        }
+        let saved = retry_transient("saving the outcome", || {
+            self.postgres().settle(token, &entry.snapshot())
+        });
+        match saved {
+            // One line per terminal write: what the chaos checker counts.
+            Ok(true) => info!(status = entry.snapshot().status.name(), "outcome saved"),
+            Ok(false) => warn!(
+                "fenced: the lease is no longer this worker's (expired, or the job deleted); \
+                 the outcome write was refused"
+            ),
+            Err(error) => warn!("saving the outcome: {error}"),
+        }
+    }
+
+    /// Renews the lease and stores the record every [`BEAT`] until `done` (once the run has
+    /// `ended`, the lease only: the outcome is the settle's to write); stops the run when the
+    /// job is canceled, deleted or taken over.
     fn heartbeats(
         &self,
         entry: &JobEntry,
         token: &str,
         lost: &AtomicBool,
+        ended: &AtomicBool,
         done: &(Mutex<bool>, Condvar),
     ) {
         let mut stored = None;
         loop {
             let record = entry.snapshot();
-            let changed = stored.as_ref() != Some(&record);
+            let changed = !ended.load(Ordering::SeqCst) && stored.as_ref() != Some(&record);
             let beat =
                 self.postgres()
                     .heartbeat(token, self.lease, changed.then_some(&record), &entry.id);
@@ -284,7 +301,9 @@ impl Workers {
                     entry.request_cancel(CancelReason::User);
                 }
                 Ok(Beat::Lost) => {
-                    lost.store(true, Ordering::SeqCst);
+                    if !lost.swap(true, Ordering::SeqCst) {
+                        warn!("fenced: the lease is another worker's now; heartbeat refused");
+                    }
                     entry.request_cancel(CancelReason::Shutdown);
                 }
                 // The lease outlives a short outage; a long one ends in `Lost`.

@@ -97,22 +97,46 @@ impl StoreError {
             // connection's own.
             StoreError::Postgres(error) => error.code().is_none_or(|code| {
                 let code = code.code();
+                // Class 53: out of disk, memory or connections.
                 code.starts_with("08")
                     || code.starts_with("57P")
-                    || matches!(code, "40001" | "40P01" | "53300")
+                    || code.starts_with("53")
+                    || matches!(code, "40001" | "40P01")
             }),
             StoreError::DatabasePool(_) => true,
-            // object_store already retried network failures, 5xx and 429 ([`Artefacts`]).
+            // The bucket out of reach even after object_store's own retries ([`Artefacts`]):
+            // the store is down or restarting, as a database refusing connections is.
+            StoreError::ObjectStore(error) => store_unreachable(error),
             StoreError::Sqlite(_)
             | StoreError::DatabaseUrl(_)
             | StoreError::DatabaseStopped
             | StoreError::NotEmbedded
             | StoreError::CorruptRecord { .. }
-            | StoreError::ObjectStore(_)
             | StoreError::ObjectStoreUrl { .. }
             | StoreError::ObjectStoreStopped => false,
         }
     }
+}
+
+/// Whether an object-store request failed on its connection (refused, reset, timed out):
+/// an [`HttpError`](object_store::client::HttpError) of that kind among the error's sources.
+/// Anything the store answered (a missing bucket, a refused signature) is not.
+fn store_unreachable(error: &object_store::Error) -> bool {
+    use object_store::client::{HttpError, HttpErrorKind};
+    let mut source: Option<&(dyn std::error::Error + 'static)> = Some(error);
+    while let Some(error) = source {
+        if let Some(http) = error.downcast_ref::<HttpError>() {
+            return matches!(
+                http.kind(),
+                HttpErrorKind::Connect
+                    | HttpErrorKind::Request
+                    | HttpErrorKind::Timeout
+                    | HttpErrorKind::Interrupted
+            );
+        }
+        source = error.source();
+    }
+    false
 }
 
 /// Out of file descriptors (`EMFILE`, `ENFILE`), for which std has no error kind.
@@ -124,14 +148,20 @@ fn out_of_descriptors(error: &std::io::Error) -> bool {
 }
 
 /// The waits before each retry of a job's own storage operation that failed transiently
-/// ([`retry_transient`]): 6.2 s in all, time for a burst of connections to close or for
-/// expired results to free space.
-pub const RETRY_DELAYS: [Duration; 5] = [
+/// ([`retry_transient`]): 111 s in all, time for a database restart or fail-over, an object
+/// store down for a minute, or expired results to free a full disk; a job holds its worker
+/// (and its lease) meanwhile rather than fail for a passing outage.
+pub const RETRY_DELAYS: [Duration; 10] = [
     Duration::from_millis(200),
     Duration::from_millis(400),
     Duration::from_millis(800),
     Duration::from_millis(1600),
     Duration::from_millis(3200),
+    Duration::from_millis(6400),
+    Duration::from_millis(12_800),
+    Duration::from_millis(25_600),
+    Duration::from_secs(30),
+    Duration::from_secs(30),
 ];
 
 /// Runs `operation`, and again after each of [`RETRY_DELAYS`] while it fails transiently
@@ -161,10 +191,16 @@ pub fn retry_transient<T>(
     }
 }
 
+/// A failure of the moment (the database or the store out of reach, a full disk) is 503
+/// `storage-unavailable` with `Retry-After`: the same request may well succeed shortly.
 impl From<StoreError> for ApiError {
     fn from(error: StoreError) -> Self {
         tracing::error!(%error, "storage error");
-        ApiError::Internal(error.public_detail())
+        if error.is_transient() {
+            ApiError::StorageUnavailable(error.public_detail())
+        } else {
+            ApiError::Internal(error.public_detail())
+        }
     }
 }
 
