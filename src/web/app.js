@@ -1165,7 +1165,7 @@ function fillDownloads() {
     }),
   );
   const svg = svgRoot();
-  ui.pngWidth.placeholder = svg?.getAttribute("width") ? `${svg.getAttribute("width")} (the original)` : "";
+  ui.pngWidth.placeholder = svg?.getAttribute("width") ?? "";
   if (limits) ui.pngWidth.max = String(limits.max_pixels);
   updatePngLink();
 }
