@@ -170,6 +170,15 @@ fn the_guides_state_the_defaults_of_the_code() {
         ),
         states(
             "docs/api.md",
+            "the smallest budget and working size in the example",
+            &format!(
+                "\"min_paths\": {}, \"min_size\": {}",
+                covec::pipeline::MIN_PATHS,
+                covec::pipeline::MIN_SIZE
+            ),
+        ),
+        states(
+            "docs/api.md",
             "the default budget in the example",
             &format!("\"defaults\": {{\"paths\": {}", params.paths),
         ),

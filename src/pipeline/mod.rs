@@ -25,8 +25,8 @@ mod tests;
 use std::sync::atomic::AtomicBool;
 
 pub use params::{
-    Error, Inputs, Iterations, Masks, Mode, Observer, Output, ParamLimits, Params, Progress, Quiet,
-    ResolvedMode,
+    Error, Inputs, Iterations, MIN_PATHS, MIN_SIZE, Masks, Mode, Observer, Output, ParamLimits,
+    Params, Progress, Quiet, ResolvedMode,
 };
 
 use crate::render::Image;

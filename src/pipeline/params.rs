@@ -138,9 +138,9 @@ impl Default for ParamLimits {
 }
 
 /// Smallest path budget: the albedo base and room for structure and refinement.
-const MIN_PATHS: u32 = 8;
+pub const MIN_PATHS: u32 = 8;
 /// Smallest working size.
-const MIN_SIZE: u32 = 16;
+pub const MIN_SIZE: u32 = 16;
 
 impl Params {
     /// Refuses values outside `limits`.

@@ -6,8 +6,9 @@ use axum::extract::State;
 use axum::http::Method;
 
 use super::{AppState, Endpoint, endpoint};
+use crate::edit::ReferenceParams;
 use crate::imageio::ACCEPTED_MEDIA_TYPES;
-use crate::pipeline::Params;
+use crate::pipeline::{MIN_PATHS, MIN_SIZE, Params};
 
 pub fn endpoints() -> Vec<Endpoint> {
     vec![endpoint(Method::GET, "/v1/limits", limits)]
@@ -23,8 +24,12 @@ pub struct Limits {
     max_pixels: u64,
     /// Most masks in one job (`--max-masks`).
     max_masks: u64,
+    /// Smallest `params.paths`: the albedo base and room for structure and refinement.
+    min_paths: u32,
     /// Largest `params.paths` (`--max-paths`).
     max_paths: u32,
+    /// Smallest `params.max_size`.
+    min_size: u32,
     /// Largest `params.max_size`, the working size's long side (`--max-size`).
     max_size: u32,
     /// Largest total of a job's `params.iterations` (`--max-iterations`).
@@ -36,6 +41,9 @@ pub struct Limits {
     media_types: Vec<&'static str>,
     /// The parameters of a job that sends none (each member applies when left out).
     defaults: Params,
+    /// The parameters of a reference edit (`POST /v1/jobs/{id}/edits` with a `reference`
+    /// image) that sends none.
+    reference_defaults: ReferenceParams,
 }
 
 #[utoipa::path(get, path = "/v1/limits", tag = "operations", operation_id = "getLimits",
@@ -51,11 +59,14 @@ async fn limits(State(state): State<AppState>) -> Json<Limits> {
         max_body_bytes: limits.max_body_bytes,
         max_pixels: limits.max_pixels,
         max_masks: limits.max_masks as u64,
+        min_paths: MIN_PATHS,
         max_paths: limits.max_paths,
+        min_size: MIN_SIZE,
         max_size: limits.max_size,
         max_iterations: limits.max_iterations,
         max_wait_seconds: state.max_wait.as_secs(),
         media_types: ACCEPTED_MEDIA_TYPES.to_vec(),
         defaults: Params::default(),
+        reference_defaults: ReferenceParams::default(),
     })
 }

@@ -1,8 +1,9 @@
-//! The web page for people: upload an image, watch the layers form, toggle and recolour them.
+//! The web page for people: upload images (or try the sample), watch the layers form, toggle
+//! and recolour them, download the results; the job ids live in the page's address.
 //!
 //! Plain HTML, CSS and JavaScript with no build step, embedded in the binary so `covec serve`
 //! needs no other files and works offline. The page talks only to the `/v1` API of the same
-//! origin. Mount it with `Router::merge(web::routes())` at the root of the service's router.
+//! origin, and reads every limit and default from `GET /v1/limits`. Mount it with `Router::merge(web::routes())` at the root of the service's router.
 //!
 //! Caching: the page itself is revalidated on every load (`no-cache` + `ETag`), and it asks for
 //! its script and style sheet under a `?v=<content hash>` query, which may then be cached for a
@@ -11,6 +12,7 @@
 use std::sync::LazyLock;
 
 use axum::Router;
+use axum::body::Bytes;
 use axum::extract::RawQuery;
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
@@ -20,6 +22,10 @@ const INDEX_HTML: &str = include_str!("index.html");
 const APP_JS: &str = include_str!("app.js");
 const APP_CSS: &str = include_str!("app.css");
 const FAVICON_SVG: &str = include_str!("favicon.svg");
+/// The photo to try without a file of one's own (licence: docs/README.md).
+const SAMPLE_JPG: &[u8] = include_bytes!("sample.jpg");
+/// The first screen's picture of the layers: the left part of docs/layers.jpg at half size.
+const LAYERS_JPG: &[u8] = include_bytes!("layers.jpg");
 
 /// Where `index.html` says the asset version goes (`app.js?v=ASSET_VERSION`).
 const VERSION_PLACEHOLDER: &str = "ASSET_VERSION";
@@ -36,14 +42,15 @@ const IMMUTABLE: &str = "public, max-age=31536000, immutable";
 
 /// One embedded file with its content type and strong `ETag`.
 struct Asset {
-    body: String,
+    body: Bytes,
     content_type: &'static str,
     etag: String,
 }
 
 impl Asset {
-    fn new(body: String, content_type: &'static str) -> Self {
-        let etag = format!("\"{:016x}\"", fnv1a(body.as_bytes()));
+    fn new(body: impl Into<Bytes>, content_type: &'static str) -> Self {
+        let body = body.into();
+        let etag = format!("\"{:016x}\"", fnv1a(&body));
         Self {
             body,
             content_type,
@@ -63,14 +70,14 @@ static INDEX: LazyLock<Asset> = LazyLock::new(|| {
     )
 });
 static SCRIPT: LazyLock<Asset> =
-    LazyLock::new(|| Asset::new(APP_JS.to_owned(), "text/javascript; charset=utf-8"));
-static ICON: LazyLock<Asset> =
-    LazyLock::new(|| Asset::new(FAVICON_SVG.to_owned(), "image/svg+xml"));
-static STYLE: LazyLock<Asset> =
-    LazyLock::new(|| Asset::new(APP_CSS.to_owned(), "text/css; charset=utf-8"));
+    LazyLock::new(|| Asset::new(APP_JS, "text/javascript; charset=utf-8"));
+static ICON: LazyLock<Asset> = LazyLock::new(|| Asset::new(FAVICON_SVG, "image/svg+xml"));
+static STYLE: LazyLock<Asset> = LazyLock::new(|| Asset::new(APP_CSS, "text/css; charset=utf-8"));
+static SAMPLE: LazyLock<Asset> = LazyLock::new(|| Asset::new(SAMPLE_JPG, "image/jpeg"));
+static LAYERS_PICTURE: LazyLock<Asset> = LazyLock::new(|| Asset::new(LAYERS_JPG, "image/jpeg"));
 
-/// The page's routes: `/`, `/app.js`, `/app.css` and `/favicon.svg`. Generic over the service's state, which
-/// they do not use.
+/// The page's routes: `/`, `/app.js`, `/app.css`, `/favicon.svg`, `/sample.jpg` and
+/// `/layers.jpg`. Generic over the service's state, which they do not use.
 pub fn routes<S>() -> Router<S>
 where
     S: Clone + Send + Sync + 'static,
@@ -91,6 +98,14 @@ where
         .route(
             "/favicon.svg",
             get(|headers: HeaderMap| async move { serve(&ICON, REVALIDATE, &headers) }),
+        )
+        .route(
+            "/sample.jpg",
+            get(|headers: HeaderMap| async move { serve(&SAMPLE, REVALIDATE, &headers) }),
+        )
+        .route(
+            "/layers.jpg",
+            get(|headers: HeaderMap| async move { serve(&LAYERS_PICTURE, REVALIDATE, &headers) }),
         )
 }
 
@@ -237,6 +252,18 @@ mod tests {
         let response = get("/favicon.svg", None).await;
         assert_eq!(response.status(), StatusCode::OK);
         assert_eq!(header_of(&response, header::CONTENT_TYPE), "image/svg+xml");
+    }
+
+    #[tokio::test]
+    async fn the_sample_and_the_layers_picture_are_jpegs() {
+        for (path, bytes) in [("/sample.jpg", SAMPLE_JPG), ("/layers.jpg", LAYERS_JPG)] {
+            let response = get(path, None).await;
+            assert_eq!(response.status(), StatusCode::OK, "{path}");
+            assert_eq!(header_of(&response, header::CONTENT_TYPE), "image/jpeg");
+            let body = to_bytes(response.into_body(), usize::MAX).await.unwrap();
+            assert_eq!(body, bytes, "{path}");
+            assert!(body.starts_with(&[0xff, 0xd8]), "{path} is not a JPEG");
+        }
     }
 
     #[tokio::test]

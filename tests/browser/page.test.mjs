@@ -1,10 +1,14 @@
-// End-to-end test of covec's web page (issue 7) in headless Debian Chromium or Firefox ESR,
-// driven by puppeteer-core (driver.mjs: the same test body in both). It starts a real `covec serve` on a free loopback port with a fresh data
-// directory (or uses --url), uploads tests/fixtures/web_astronaut.png with a small budget, and
-// checks what a person would see: progress and stage previews, the result, that each layer
-// toggle changes the pixels, a recolour through the edits API and its undo, the downloads
-// (byte for byte the API's files), and that the browser's rendering of the inlined SVG matches
-// covec's own renderer (the job's final composite preview) to a mean of 1.5/255.
+// End-to-end test of covec's web page in headless Debian Chromium or Firefox ESR, driven by
+// puppeteer-core (driver.mjs: the same test body in both). It starts a real `covec serve` on a
+// free loopback port with a fresh data directory (or uses --url), uploads
+// tests/fixtures/web_astronaut.png with a small budget, and checks what a person would see: the
+// form bounded by the server's limits, refusals next to the file they concern, progress and
+// stage previews, the result, that each layer toggle changes the pixels, a recolour (by colour
+// and by a reference image) through the edits API and its undo, the downloads (byte for byte
+// the API's files, named after the input), a PNG of a chosen width, the job resumed from the
+// page's address after a reload (finished and mid-job), several files at once, the sample
+// photo, and that the browser's rendering of the inlined SVG matches covec's own renderer (the
+// job's final composite preview) to a mean of 1.5/255.
 //
 //   node tests/browser/page.test.mjs --covec target/release/covec [--browser firefox] [--artifacts DIR]
 //   node tests/browser/page.test.mjs --url http://127.0.0.1:8080
@@ -47,12 +51,12 @@ args.artifacts ??= path.join(repo, "tests/artifacts/browser", args.browser);
 const BROWSER_NAME = { chromium: "Chromium", firefox: "Firefox" }[args.browser];
 
 const FIXTURE = path.join(repo, "tests/fixtures/web_astronaut.png");
-/** Whether the API document has the edits route (issue 6); then the recolour steps are required. */
+/** Whether the API document has the edits route; then the recolour steps are required. */
 const EDITS_DOCUMENTED = fs.readFileSync(path.join(repo, "api/openapi.yaml"), "utf8").includes("/v1/jobs/{id}/edits:");
 
 /**
  * Why the recolour steps cannot run, or null: only when the edits route is neither documented
- * nor served (a build without issue 6) are they skipped, loudly.
+ * nor served are they skipped, loudly.
  */
 async function missingEditsApi(base, jobId) {
   if (EDITS_DOCUMENTED) return null;
@@ -63,7 +67,7 @@ async function missingEditsApi(base, jobId) {
   });
   const problem = await response.json().catch(() => ({}));
   return response.status === 404 && problem.code === "route-not-found"
-    ? "this build has no POST /v1/jobs/{id}/edits (issue 6), and api/openapi.yaml does not document it"
+    ? "this build has no POST /v1/jobs/{id}/edits, and api/openapi.yaml does not document it"
     : null;
 }
 /** A small budget and few iterations: the point is the page, not the quality. */
@@ -81,7 +85,7 @@ const LONG_JOB_STRUCTURE_ITERATIONS = 40000;
 const MAX_ITERATIONS = 100_000;
 /** The request body limit the test's server gets, so that an oversized upload is quick to make. */
 const MAX_BODY_BYTES = 1_000_000;
-/** Issue 7's bar for "the page's rendering matches our renderer". */
+/** The bar for "the page's rendering matches our renderer". */
 const PARITY_MEAN_MAX = 1.5;
 /**
  * A layer toggle must move some pixels by more than rounding noise: at least this many
@@ -320,6 +324,33 @@ async function run(context, base) {
     return file;
   };
   const svg = page.locator("#svg-host > svg");
+  /** The job form filled with the small budget (the Advanced part opened first). */
+  const fillForm = async (tab = page) => {
+    if (!(await tab.evaluate(() => document.getElementById("advanced").open))) await tab.click("#advanced > summary");
+    await tab.fill("#paths", JOB.paths);
+    await tab.selectOption("#mode", JOB.mode);
+    await tab.fill("#max-size", JOB.maxSize);
+    for (const [key, value] of Object.entries(JOB.iterations)) await tab.fill(`#it-${key}`, value);
+  };
+  /**
+   * Clicks a download link and returns the saved file's name and bytes; the file is then
+   * removed, so that a later download of the same name is not renamed by the browser.
+   */
+  const downloadFrom = async (link, tab = page) => {
+    const [download] = await Promise.all([tab.waitForEvent("download"), link.click()]);
+    const file = await download.path();
+    const bytes = fs.readFileSync(file);
+    fs.rmSync(file);
+    return { name: download.suggestedFilename(), bytes };
+  };
+  /** The row of the file named `name` (for rowState: the newest, if it was given more than once). */
+  const rowOf = (name) => `#jobs > li[data-name="${name}"]`;
+  const rowState = (name) =>
+    page.evaluate((name) => {
+      const rows = document.querySelectorAll(`#jobs > li[data-name="${CSS.escape(name)}"]`);
+      const row = rows[rows.length - 1];
+      return row && { status: row.dataset.status, job: row.dataset.job, error: row.querySelector(".error").hidden ? "" : row.querySelector(".error").textContent, bar: row.querySelector("progress").value };
+    }, name);
   /**
    * The vector image's own pixels, without the pick outline drawn over it: a clip of the SVG's
    * size. The SVG is first moved (relatively positioned, not transformed: Chromium draws a
@@ -352,9 +383,45 @@ async function run(context, base) {
     check(response.ok(), `GET / gave ${response.status()}`);
     check(/text\/html/.test(response.headers()["content-type"]), "page is not text/html");
     await page.waitForSelector("body[data-state=idle]", { timeout: 5000 });
+    await page.waitForSelector("body[data-limits=loaded]", { timeout: 5000 });
     check((await page.title()).includes("covec"), "no title");
+    await page.waitForFunction(() => document.querySelector("#intro img").complete);
+    const picture = await page.evaluate(() => document.querySelector("#intro img").naturalWidth);
+    check(picture > 0, "the picture of the layers did not load");
+    check(await page.locator("#try-sample").isVisible(), "no sample to try");
     await screenshot("loaded");
   }, { later_steps_need_it: true });
+
+  await step("the form's bounds, defaults and accepted types are the server's (GET /v1/limits)", async () => {
+    const limits = JSON.parse(await apiBytes(base, "/v1/limits"));
+    const form = await page.evaluate(() => {
+      const attrs = (id) => {
+        const e = document.getElementById(id);
+        return { min: e.min, max: e.max, value: e.value };
+      };
+      return {
+        paths: attrs("paths"),
+        maxSize: attrs("max-size"),
+        structure: attrs("it-structure"),
+        polish: attrs("it-polish"),
+        k: attrs("reference-k"),
+        mode: document.getElementById("mode").value,
+        accept: document.getElementById("image").accept,
+        note: document.getElementById("accepted-types").textContent,
+      };
+    });
+    const same = (field, expected) => check(JSON.stringify(field) === JSON.stringify(expected), `${JSON.stringify(field)} != ${JSON.stringify(expected)}`);
+    same(form.paths, { min: `${limits.min_paths}`, max: `${limits.max_paths}`, value: `${limits.defaults.paths}` });
+    same(form.maxSize, { min: `${limits.min_size}`, max: `${limits.max_size}`, value: `${limits.defaults.max_size}` });
+    same(form.structure.value, `${limits.defaults.iterations.structure}`);
+    same(form.polish.value, `${limits.defaults.iterations.polish}`);
+    same(form.k.value, `${limits.reference_defaults.k}`);
+    same(form.mode, limits.defaults.mode);
+    same(form.accept, limits.media_types.join(","));
+    // The server under test takes MAX_BODY_BYTES (976.6 KiB): the page says so.
+    check(form.note.includes("976.6 KiB"), `limits note: ${form.note}`);
+    facts.limits_shown = form;
+  });
 
   await step("every control has a label and every action is a button", async () => {
     const unlabelled = await page.evaluate(() =>
@@ -381,9 +448,10 @@ async function run(context, base) {
   await step("a file of the wrong type is refused with a clear message", async () => {
     await page.setInputFiles("#image", { name: "notes.txt", mimeType: "text/plain", buffer: Buffer.from("hello") });
     await page.click("#submit");
-    const message = await page.locator("#form-error").textContent();
-    check(await page.locator("#form-error").isVisible(), "no error shown");
-    check(/not an image covec reads/.test(message), `message: ${message}`);
+    await page.waitForSelector(`${rowOf("notes.txt")} .error`);
+    const row = await rowState("notes.txt");
+    check(row.status === "refused" && !row.job, `row: ${JSON.stringify(row)}`);
+    check(/not an image covec reads/.test(row.error), `message: ${row.error}`);
     await screenshot("wrong-type");
   });
 
@@ -395,26 +463,28 @@ async function run(context, base) {
     });
     expectRejectedUpload = true;
     await page.click("#submit");
-    await page.waitForSelector("#form-error:not([hidden])", { timeout: 10_000 });
+    await page.waitForSelector(`${rowOf("broken.png")} .error`, { timeout: 10_000 });
     expectRejectedUpload = false;
-    const message = await page.locator("#form-error").textContent();
-    check(/rejected/.test(message) && message.length > 30, `message: ${message}`);
+    const message = (await rowState("broken.png")).error;
+    check(/refused “broken\.png”/.test(message) && message.length > 50, `message: ${message}`);
     facts.rejected_message = message;
     await screenshot("rejected-by-server");
   });
 
   if (args.covec) {
-    await step("an upload over the server's size limit says so", async () => {
+    await step("a file over the server's size limit is refused next to it, before any upload", async () => {
       const big = Buffer.alloc(MAX_BODY_BYTES + 100_000, 7);
       big.write("\x89PNG\r\n\x1a\n", 0, "latin1");
       await page.setInputFiles("#image", { name: "huge.png", mimeType: "image/png", buffer: big });
-      expectRejectedUpload = true;
+      let posted = false;
+      const watch = (request) => (posted ||= request.method() === "POST");
+      page.on("request", watch);
       await page.click("#submit");
-      await page.waitForFunction(() => /too large|limit/i.test(document.getElementById("form-error").textContent), null, {
-        timeout: 10_000,
-      });
-      expectRejectedUpload = false;
-      facts.too_large_message = await page.locator("#form-error").textContent();
+      await page.waitForSelector(`${rowOf("huge.png")} .error`, { timeout: 10_000 });
+      page.page.off("request", watch);
+      check(!posted, "the page uploaded a file over the server's limit");
+      facts.too_large_message = (await rowState("huge.png")).error;
+      check(/too large/.test(facts.too_large_message) && facts.too_large_message.includes("976.6 KiB"), facts.too_large_message);
       await screenshot("too-large");
     });
   }
@@ -422,11 +492,7 @@ async function run(context, base) {
   let job;
   await step("uploads the bench image with a small budget", async () => {
     await page.setInputFiles("#image", FIXTURE);
-    await page.fill("#paths", JOB.paths);
-    await page.selectOption("#mode", JOB.mode);
-    await page.click("#advanced > summary");
-    await page.fill("#max-size", JOB.maxSize);
-    for (const [key, value] of Object.entries(JOB.iterations)) await page.fill(`#it-${key}`, value);
+    await fillForm();
     await screenshot("form-filled");
     const created = page.waitForResponse((r) => r.url().endsWith("/v1/jobs") && r.request().method() === "POST");
     await page.click("#submit");
@@ -541,6 +607,19 @@ async function run(context, base) {
   });
 
   const noEditsApi = job ? await missingEditsApi(base, job.id) : null;
+  /** An edit recolours albedo paths only: the shade and light groups stay as they were. */
+  const checkLightingKept = async (original, edited) => {
+    const kept = await scratch.evaluate(
+      ({ a, b }) => {
+        const parse = (text) => new DOMParser().parseFromString(text, "image/svg+xml");
+        const [x, y] = [parse(a), parse(b)];
+        const same = (sel) => x.querySelector(sel)?.outerHTML === y.querySelector(sel)?.outerHTML;
+        return { shade: same("g#shade"), light: same("g#light") };
+      },
+      { a: original.toString("utf8"), b: edited.toString("utf8") },
+    );
+    check(kept.shade && kept.light, `the edit changed the lighting layers: ${JSON.stringify(kept)}`);
+  };
   let target;
   await step("clicking the result picks the albedo path under the cursor", async () => {
     // The non-base albedo path with the largest visible area, and the screen points it covers.
@@ -597,16 +676,7 @@ async function run(context, base) {
     const editSvgUrl = edit.urls?.svg || `/v1/jobs/${job.id}/edits/${edit.id}/svg`;
     const editSvg = await apiBytes(base, editSvgUrl);
     check((await page.locator("#svg-host").getAttribute("data-sha256")) === sha256(editSvg), "page shows other bytes than the edit's SVG");
-    const kept = await scratch.evaluate(
-      ({ a, b }) => {
-        const parse = (text) => new DOMParser().parseFromString(text, "image/svg+xml");
-        const [x, y] = [parse(a), parse(b)];
-        const same = (sel) => x.querySelector(sel)?.outerHTML === y.querySelector(sel)?.outerHTML;
-        return { shade: same("g#shade"), light: same("g#light") };
-      },
-      { a: jobSvg.toString("utf8"), b: editSvg.toString("utf8") },
-    );
-    check(kept.shade && kept.light, `the edit changed the lighting layers: ${JSON.stringify(kept)}`);
+    await checkLightingKept(jobSvg, editSvg);
   }, { skip_because: noEditsApi });
 
   await step("undo brings the original back", async () => {
@@ -619,28 +689,106 @@ async function run(context, base) {
     await screenshot("undone");
   }, { skip_because: noEditsApi });
 
-  await step("downloads are the API's files byte for byte", async () => {
+  await step("downloads are the API's files byte for byte, named after the input file", async () => {
     const expected = [
-      ["Layered SVG", jobSvgUrl],
-      ["Scene JSON", `/v1/jobs/${job.id}/scene.json`],
-      ["Albedo layer SVG", `/v1/jobs/${job.id}/layers/albedo.svg`],
-      ["Shade layer SVG", `/v1/jobs/${job.id}/layers/shade.svg`],
-      ["Light layer SVG", `/v1/jobs/${job.id}/layers/light.svg`],
-      ["Flattened SVG", `/v1/jobs/${job.id}/svg?flatten=true`],
-      ["PDF", `/v1/jobs/${job.id}/pdf`],
-      ["PNG", `/v1/jobs/${job.id}/png`],
+      ["Layered SVG", jobSvgUrl, "web_astronaut.svg"],
+      ["Scene JSON", `/v1/jobs/${job.id}/scene.json`, "web_astronaut.json"],
+      ["Albedo layer SVG", `/v1/jobs/${job.id}/layers/albedo.svg`, "web_astronaut-albedo.svg"],
+      ["Shade layer SVG", `/v1/jobs/${job.id}/layers/shade.svg`, "web_astronaut-shade.svg"],
+      ["Light layer SVG", `/v1/jobs/${job.id}/layers/light.svg`, "web_astronaut-light.svg"],
+      ["Flattened SVG", `/v1/jobs/${job.id}/svg?flatten=true`, "web_astronaut-flat.svg"],
+      ["PDF", `/v1/jobs/${job.id}/pdf`, "web_astronaut.pdf"],
+      ["PNG", `/v1/jobs/${job.id}/png`, "web_astronaut.png"],
     ];
     facts.downloads = {};
-    for (const [label, url] of expected) {
-      const [download] = await Promise.all([
-        page.waitForEvent("download"),
-        page.locator("#downloads a", { hasText: new RegExp(`^${label}$`) }).click(),
-      ]);
-      const bytes = fs.readFileSync(await download.path());
+    for (const [label, url, name] of expected) {
+      const saved = await downloadFrom(page.locator("#downloads a", { hasText: new RegExp(`^${label}$`) }));
       const api = await apiBytes(base, url);
-      check(bytes.equals(api), `${label}: downloaded ${bytes.length} bytes differ from GET ${url} (${api.length} bytes)`);
-      facts.downloads[download.suggestedFilename()] = bytes.length;
+      check(saved.bytes.equals(api), `${label}: downloaded ${saved.bytes.length} bytes differ from GET ${url} (${api.length} bytes)`);
+      check(saved.name === name, `${label} was saved as ${saved.name}, not ${name}`);
+      facts.downloads[saved.name] = saved.bytes.length;
     }
+  });
+
+  await step("the PNG download takes a width, and one over the server's pixel limit is refused next to the field", async () => {
+    await page.fill("#png-width", "100");
+    const saved = await downloadFrom(page.locator("#downloads a[data-kind=png]"));
+    const { width, height } = await pixels.size(saved.bytes);
+    check(width === 100 && height === 100, `the PNG is ${width}×${height}, not 100×100`);
+    check(saved.name === "web_astronaut.png", `saved as ${saved.name}`);
+    const limits = JSON.parse(await apiBytes(base, "/v1/limits"));
+    await page.fill("#png-width", String(Math.ceil(Math.sqrt(limits.max_pixels)) + 1));
+    await page.waitForSelector("#png-error");
+    const message = await page.locator("#png-error").textContent();
+    check(message.includes(String(limits.max_pixels)), `message: ${message}`);
+    check((await page.locator("#downloads a[data-kind=png]").getAttribute("href")) === null, "the PNG link still points at a refused width");
+    await screenshot("png-width-refused");
+    // Cleared as a person would (puppeteer's fill("") leaves a number field as it was).
+    await page.locator("#png-width").evaluate((input) => {
+      input.value = "";
+      input.dispatchEvent(new Event("input", { bubbles: true }));
+    });
+    check(await page.locator("#png-error").isHidden(), "the refusal stays after clearing the width");
+    facts.png_width = { width, height, refused: message };
+  });
+
+  await step("recolouring by a reference image changes the colours and keeps the lighting", async () => {
+    const before = await svgPixels();
+    // The input with its left half painted a vivid green: the reference a person would make
+    // in an image editor.
+    await page.evaluate(async ({ b64 }) => {
+      const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+      const bitmap = await createImageBitmap(new Blob([bytes], { type: "image/png" }));
+      const canvas = new OffscreenCanvas(bitmap.width, bitmap.height);
+      const context = canvas.getContext("2d");
+      context.drawImage(bitmap, 0, 0);
+      context.globalCompositeOperation = "color";
+      context.fillStyle = "#10e020";
+      context.fillRect(0, 0, bitmap.width / 2, bitmap.height);
+      const blob = await canvas.convertToBlob({ type: "image/png" });
+      const data = new DataTransfer();
+      data.items.add(new File([blob], "web_astronaut-green.png", { type: "image/png" }));
+      document.getElementById("reference").files = data.files;
+    }, { b64: fs.readFileSync(FIXTURE).toString("base64") });
+    await page.click("#by-reference > summary");
+    const posted = page.waitForResponse((r) => /\/edits$/.test(r.url()) && r.request().method() === "POST");
+    await page.click("#apply-reference");
+    const response = await posted;
+    check(response.status() === 201, `POST edits gave ${response.status()}: ${await response.text()}`);
+    const edit = await response.json();
+    check(edit.changed?.length > 0, `the reference changed no path: ${JSON.stringify(edit)}`);
+    await page.waitForSelector(`#svg-host[data-version="${edit.id}"]`, { timeout: 10_000 });
+    await screenshot("reference-recoloured");
+    const change = await pixels.diff(before, await svgPixels());
+    check(visiblyChanged(change), `the picture hardly changed: ${JSON.stringify(change)}`);
+    const editSvg = await apiBytes(base, `/v1/jobs/${job.id}/edits/${edit.id}/svg`);
+    check((await page.locator("#svg-host").getAttribute("data-sha256")) === sha256(editSvg), "page shows other bytes than the edit's SVG");
+    await checkLightingKept(jobSvg, editSvg);
+    const saved = await downloadFrom(page.locator("#downloads a[data-kind=svg]"));
+    check(saved.bytes.equals(editSvg), "the recoloured SVG downloaded is not the edit's");
+    check(saved.name === `web_astronaut-${edit.id}.svg`, `saved as ${saved.name}`);
+    facts.reference_edit = { changed: edit.changed.length, mean_change: +change.mean.toFixed(2), saved_as: saved.name };
+    await page.click("#undo");
+    await page.waitForSelector('#svg-host[data-version="original"]');
+  }, { skip_because: noEditsApi });
+
+  await step("the job is in the page's address: a reload brings its result back", async () => {
+    const hash = await page.evaluate(() => location.hash);
+    check(hash.includes(`job=${job.id}`), `address: ${hash}`);
+    await page.reload();
+    await page.waitForSelector("body[data-state=succeeded] #svg-host > svg", { timeout: 30_000 });
+    await page.waitForFunction(() => document.querySelector("#svg-host").dataset.sha256);
+    check((await page.locator("#svg-host").getAttribute("data-sha256")) === sha256(jobSvg), "the reloaded page shows other bytes than GET /svg");
+    const row = await rowState("web_astronaut.png");
+    check(row?.job === job.id && row.status === "succeeded", `row after reload: ${JSON.stringify(row)}`);
+    await page.waitForFunction(() => {
+      const input = document.getElementById("input-image");
+      return input.complete && input.naturalWidth > 0;
+    });
+    const saved = await downloadFrom(page.locator("#downloads a[data-kind=svg]"));
+    check(saved.name === "web_astronaut.svg", `after a reload the SVG is saved as ${saved.name}`);
+    facts.address = hash;
+    await screenshot("reloaded-result");
   });
 
   await step("the page is usable on a phone-sized viewport", async () => {
@@ -654,9 +802,11 @@ async function run(context, base) {
     await page.setViewportSize({ width: 1280, height: 900 });
   });
 
-  await step("a longer job shows live progress and previews, and can be canceled", async () => {
+  await step("a longer job shows live progress and previews, survives a reload, and can be canceled", async () => {
     // Long enough to be watched (and canceled) while it runs, even on an idle fast machine.
+    await fillForm();
     await page.fill("#it-structure", String(LONG_JOB_STRUCTURE_ITERATIONS));
+    await page.setInputFiles("#image", FIXTURE);
     await page.click("#submit");
     await page.waitForSelector("body[data-state=running]", { timeout: JOB_TIMEOUT_MS });
     await page.waitForFunction(
@@ -680,6 +830,22 @@ async function run(context, base) {
       previews: document.querySelectorAll("#previews img").length,
     }));
     await screenshot("progress-live");
+    // Reloaded mid-job, the page follows the same job from its address.
+    const running = await page.evaluate(() => new URLSearchParams(location.hash.slice(1)).get("show"));
+    check(running && running !== job.id, `address: ${await page.evaluate(() => location.hash)}`);
+    await page.reload();
+    await page.waitForFunction(
+      (id) =>
+        document.body.dataset.state === "running" &&
+        document.querySelector(`#jobs > li[data-job="${id}"][aria-current=true]`) &&
+        document.getElementById("bar").value > 0 &&
+        document.querySelector("#previews img")?.naturalWidth > 0,
+      running,
+      { timeout: JOB_TIMEOUT_MS },
+    );
+    check((await rowState("web_astronaut.png"))?.job === running, "the running job's row is not the newest of its name");
+    await screenshot("reloaded-mid-job");
+    facts.live.resumed = running;
     await page.click("#cancel");
     await page.waitForSelector("body[data-state=canceled]", { timeout: 30_000 });
     const message = await page.locator("#job-error").textContent();
@@ -688,8 +854,59 @@ async function run(context, base) {
     await screenshot("canceled");
   });
 
+  await step("several files at once: a row each, with its own progress and errors", async () => {
+    await fillForm();
+    const names = ["first.png", "second.png", "notes.txt"];
+    await page.evaluate(({ b64, names }) => {
+      const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+      const data = new DataTransfer();
+      data.items.add(new File([bytes], names[0], { type: "image/png" }));
+      data.items.add(new File([bytes], names[1], { type: "image/png" }));
+      data.items.add(new File(["not an image"], names[2], { type: "text/plain" }));
+      document.getElementById("image").files = data.files;
+    }, { b64: fs.readFileSync(FIXTURE).toString("base64"), names });
+    await page.click("#submit");
+    await page.waitForFunction(
+      (names) => names.slice(0, 2).every((name) => document.querySelector(`#jobs > li[data-name="${name}"]`)?.dataset.status === "succeeded"),
+      names,
+      { timeout: JOB_TIMEOUT_MS },
+    );
+    const [first, second, notes] = await Promise.all(names.map(rowState));
+    check(first.job && second.job && first.job !== second.job, `jobs: ${first.job}, ${second.job}`);
+    check(first.bar === 1 && second.bar === 1 && !first.error && !second.error, `rows: ${JSON.stringify([first, second])}`);
+    check(notes.status === "refused" && /not an image/.test(notes.error), `the text file's row: ${JSON.stringify(notes)}`);
+    const hash = await page.evaluate(() => location.hash);
+    check(hash.includes(`job=${first.job}`) && hash.includes(`job=${second.job}`), `address: ${hash}`);
+    // The first is shown; "Show" on the second shows its result, downloads named after it.
+    await page.waitForSelector(`#svg-host[data-svg-url*="${first.job}"] > svg`, { timeout: 10_000 });
+    await screenshot("several-files");
+    await page.click(`#jobs > li[data-job="${second.job}"] .job-show`);
+    await page.waitForSelector(`body[data-state=succeeded] #svg-host[data-svg-url*="${second.job}"] > svg`, { timeout: 10_000 });
+    const saved = await downloadFrom(page.locator("#downloads a[data-kind=svg]"));
+    check(saved.name === "second.svg", `saved as ${saved.name}`);
+    check(saved.bytes.equals(await apiBytes(base, `/v1/jobs/${second.job}/svg`)), "the second file's SVG differs from its job's");
+    check((await page.evaluate(() => new URLSearchParams(location.hash.slice(1)).get("show"))) === second.job, "the address does not say which is shown");
+    facts.several = { first: first.job, second: second.job, refused: notes.error };
+    await screenshot("several-files-second");
+  });
+
+  await step("the sample photo runs without a file of one's own", async () => {
+    await fillForm();
+    const created = page.waitForResponse((r) => r.url().endsWith("/v1/jobs") && r.request().method() === "POST");
+    await page.click("#try-sample");
+    const response = await created;
+    check(response.status() === 201, `POST /v1/jobs gave ${response.status()}: ${await response.text()}`);
+    const sample = await response.json();
+    check(sample.input_name === "sample.jpg", `input name: ${sample.input_name}`);
+    await page.waitForSelector(`body[data-state=succeeded] #svg-host[data-svg-url*="${sample.id}"] > svg`, { timeout: JOB_TIMEOUT_MS });
+    const saved = await downloadFrom(page.locator("#downloads a[data-kind=pdf]"));
+    check(saved.name === "sample.pdf" && saved.bytes.subarray(0, 5).toString() === "%PDF-", `saved ${saved.name}`);
+    facts.sample = sample.id;
+    await screenshot("sample");
+  });
+
   await step("a dropped image with an albedo map and masks is sent and vectorised", async () => {
-    for (const [key, value] of Object.entries(JOB.iterations)) await page.fill(`#it-${key}`, value);
+    await fillForm();
     const png = fs.readFileSync(FIXTURE);
     const size = { width: png.readUInt32BE(16), height: png.readUInt32BE(20) };
     // Drop the image on the drop zone, as a person dragging a file would.
@@ -744,8 +961,9 @@ async function run(context, base) {
     check(fields("image")[0][1] === "dropped.png", `the image sent was ${fields("image")[0][1]}`);
     const response = await created;
     check(response.status() === 201, `POST /v1/jobs gave ${response.status()}: ${await response.text()}`);
-    await page.waitForSelector("body[data-state=succeeded] #svg-host > svg", { timeout: JOB_TIMEOUT_MS });
-    facts.dropped_with_masks = { job: (await response.json()).id, mask_size: size };
+    const dropped = await response.json();
+    await page.waitForSelector(`body[data-state=succeeded] #svg-host[data-svg-url*="${dropped.id}"] > svg`, { timeout: JOB_TIMEOUT_MS });
+    facts.dropped_with_masks = { job: dropped.id, mask_size: size };
     await screenshot("dropped-with-masks");
   });
 
@@ -764,16 +982,13 @@ async function run(context, base) {
         await other.goto(keyed.url, { waitUntil: "load" });
         const fill = async () => {
           await other.setInputFiles("#image", FIXTURE);
-          await other.fill("#paths", JOB.paths);
-          await other.click("#advanced > summary");
-          await other.fill("#max-size", JOB.maxSize);
-          for (const [name, value] of Object.entries(JOB.iterations)) await other.fill(`#it-${name}`, value);
+          await fillForm(other);
         };
-        // Without the key the server's refusal is shown.
+        // Without the key the server's refusal is shown, next to the file.
         await fill();
         await other.click("#submit");
-        await other.waitForSelector("#form-error:not([hidden])", { timeout: 10_000 });
-        const refusal = await other.locator("#form-error").textContent();
+        await other.waitForSelector("#jobs > li[data-status=refused] .error", { timeout: 10_000 });
+        const refusal = await other.locator("#jobs > li[data-status=refused] .error").textContent();
         check(/Authorization|key/i.test(refusal), `message without a key: ${refusal}`);
         // With it: the stream, previews, result and downloads all carry it.
         await other.fill("#api-key", key);
@@ -786,11 +1001,7 @@ async function run(context, base) {
         const stage = await other.locator("#stage-name").textContent();
         check(stage === "Done", `stage line: ${stage}`);
         const url = await other.locator("#svg-host").getAttribute("data-svg-url");
-        const [download] = await Promise.all([
-          other.waitForEvent("download"),
-          other.locator("#downloads a", { hasText: /^Layered SVG$/ }).click(),
-        ]);
-        const bytes = fs.readFileSync(await download.path());
+        const { bytes } = await downloadFrom(other.locator("#downloads a", { hasText: /^Layered SVG$/ }), other);
         const served = await apiBytes(keyed.url, url, { authorization: `Bearer ${key}` });
         check(bytes.equals(served), `keyed download: ${bytes.length} bytes, the API serves ${served.length}`);
         // The key stays for the tab (sessionStorage), not in the page's URL or cookies.
