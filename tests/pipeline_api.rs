@@ -87,16 +87,25 @@ fn bad_masks_and_parameters_are_refused() {
 
 #[test]
 fn auto_mode_tells_flat_artwork_from_photos() {
-    let run = |image: RgbImage| {
+    let run_at = |image: RgbImage, max_size: u32| {
         let inputs = Inputs {
             image: DynamicImage::ImageRgb8(image),
             albedo: None,
             masks: Masks::None,
         };
-        pipeline::run(&inputs, &Params::default(), &Quiet, &AtomicBool::new(false))
-            .unwrap()
-            .mode
+        let params = Params {
+            max_size,
+            ..Params::default()
+        };
+        let output = pipeline::run(&inputs, &params, &Quiet, &AtomicBool::new(false)).unwrap();
+        assert!(
+            output.mode_reason.starts_with("auto: "),
+            "{}",
+            output.mode_reason
+        );
+        output.mode
     };
+    let run = |image: RgbImage| run_at(image, Params::default().max_size);
     // An icon: a few flat shapes on white (anti-aliased edges do not matter).
     let icon = RgbImage::from_fn(64, 64, |x, y| {
         let r2 = (x as i32 - 32).pow(2) + (y as i32 - 32).pow(2);
@@ -115,4 +124,21 @@ fn auto_mode_tells_flat_artwork_from_photos() {
         image::Rgb([(x * 255 / 299) as u8, (y * 255 / 199) as u8, 128])
     });
     assert_eq!(run(gradient), ResolvedMode::Photo);
+    // A lit sphere on a flat backdrop: shading, however much of the image is one colour.
+    let sphere = covec::synth::lit_sphere(64, [0.8, 0.3, 0.2], [0.55, 0.55, 0.58]);
+    assert_eq!(run(sphere), ResolvedMode::Photo);
+    // The choice is made on the input's pixels, not on a small working size that blurs an
+    // emoji's details into texture.
+    let fixture = |name: &str| {
+        let path = format!("{}/tests/fixtures/{name}", env!("CARGO_MANIFEST_DIR"));
+        image::open(path).unwrap().to_rgb8()
+    };
+    assert_eq!(
+        run_at(fixture("emoji_red-apple.png"), 64),
+        ResolvedMode::Simple
+    );
+    assert_eq!(
+        run_at(fixture("photo96_scene_coffee.png"), 32),
+        ResolvedMode::Photo
+    );
 }

@@ -128,14 +128,16 @@ struct Row {
     seconds: f64,
     peak_mb: Option<f64>,
     objects: Option<ObjectScores>,
+    /// Why the mode (as the job record and the CLI say it).
+    mode_reason: String,
 }
 
-const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb,vec,median_iou";
+const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb,vec,median_iou,mode_reason";
 
 impl Row {
     fn csv(&self) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{},{},{},\"{}\"",
             self.image,
             self.class,
             self.method,
@@ -158,6 +160,7 @@ impl Row {
             self.peak_mb.map(|m| format!("{m:.1}")).unwrap_or_default(),
             optional(self.objects.and_then(|o| o.vec)),
             optional(self.objects.and_then(|o| o.median_iou)),
+            self.mode_reason.replace('"', "'"),
         )
     }
 }
@@ -237,12 +240,12 @@ fn run_one(
         Some(dir) => Some(semantic_masks(&dir.join(stem(path)))?),
         None => None,
     };
-    let (scene, mode): (Scene, ResolvedMode) = match method {
+    let (scene, mode, mode_reason): (Scene, ResolvedMode, String) = match method {
         Method::Random => {
             let mut scene =
                 eval::random_baseline(&target, &params, &Quiet, &cancel).map_err(pipeline_error)?;
             (scene.original_width, scene.original_height) = (image.width(), image.height());
-            (scene, ResolvedMode::Simple)
+            (scene, ResolvedMode::Simple, "random baseline".into())
         }
         _ => {
             params.mode = match method {
@@ -260,7 +263,7 @@ fn run_one(
             };
             let output =
                 pipeline::run(&inputs, &params, &Quiet, &cancel).map_err(pipeline_error)?;
-            (output.scene, output.mode)
+            (output.scene, output.mode, output.mode_reason)
         }
     };
     let svg_bytes = svg::to_svg(&scene, &SvgOptions::default()).len();
@@ -299,6 +302,7 @@ fn run_one(
         seconds,
         peak_mb,
         objects,
+        mode_reason,
     })
 }
 

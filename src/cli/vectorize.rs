@@ -69,8 +69,9 @@ pub struct Args {
     #[arg(long, default_value_t = Params::default().paths, value_name = "N")]
     pub paths: u32,
     /// photo: albedo, shade and light layers; simple: albedo only, for emoji, icons and flat
-    /// artwork; auto: simple when the 16 most frequent exact colours cover at least 30% of the
-    /// image, else photo.
+    /// artwork; auto: looks at the part of the image that is not flat colour: photo when it
+    /// holds smooth shading or photographic texture (however much flat background surrounds
+    /// it), else simple. The summary line says why.
     #[arg(long, value_enum, default_value_t = Params::default().mode)]
     pub mode: Mode,
     /// Working size: the long side is scaled down to this many pixels, never up (16-4096).
@@ -145,9 +146,10 @@ pub fn run(input: &Path, args: &Args) -> Result<(), Error> {
     if std::io::stderr().is_terminal() {
         let scene = &output.scene;
         eprintln!(
-            "{}: {} mode, {} paths ({} albedo, {} shade, {} light), {} segments",
+            "{}: {} mode ({}), {} paths ({} albedo, {} shade, {} light), {} segments",
             output_path.display(),
             output.mode.name(),
+            output.mode_reason,
             scene.path_count(),
             scene.albedo.paths.len(),
             scene.shade.paths.len(),

@@ -13,6 +13,7 @@
 pub mod albedo;
 pub mod binarize;
 pub mod intrinsic;
+pub mod look;
 pub mod mask;
 pub mod organize;
 pub mod segment;
@@ -28,31 +29,6 @@ use segment::Candidate;
 pub fn min_mask_area(width: usize, height: usize) -> usize {
     (width * height / 2000).max(8)
 }
-
-/// Share of the pixels covered by the [`PALETTE_SIZE`] most frequent exact 8-bit colours.
-/// Flat artwork (emoji, icons, logos) is painted in few exact colours and scores high (0.55-0.98
-/// on the covec-bench emoji); photographs, even blurred or upscaled ones, spread over thousands
-/// of colours and score low (at most 0.06 on the covec-bench photos).
-pub fn palette_coverage(image: &Image) -> f32 {
-    let pixels = image.width * image.height;
-    if pixels == 0 {
-        return 1.0;
-    }
-    let mut counts = std::collections::HashMap::new();
-    for rgb in image.data.chunks_exact(3) {
-        let key = [0, 1, 2].map(|c| (rgb[c].clamp(0.0, 1.0) * 255.0).round() as u8);
-        *counts.entry(key).or_insert(0usize) += 1;
-    }
-    let mut counts: Vec<usize> = counts.into_values().collect();
-    counts.sort_unstable_by(|a, b| b.cmp(a));
-    counts.iter().take(PALETTE_SIZE).sum::<usize>() as f32 / pixels as f32
-}
-
-/// How many colours count as the palette in [`palette_coverage`].
-pub const PALETTE_SIZE: usize = 16;
-
-/// `auto` picks `simple` when the palette covers at least this share of the image.
-pub const SIMPLE_PALETTE_COVERAGE: f32 = 0.3;
 
 /// Scores client masks by the squared error a flat colour inside them removes (a Ward split
 /// against the rest of the canvas), most useful first.

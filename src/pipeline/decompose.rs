@@ -3,12 +3,10 @@
 //! [`crate::decompose`]; and `auto` resolved.
 
 use super::params::{Inputs, Masks, Mode, Params, ResolvedMode};
+use crate::decompose::look::{ANALYSIS_SIZE, Look, look};
 use crate::decompose::mask::Mask;
 use crate::decompose::segment::{self, Candidate};
-use crate::decompose::{
-    SIMPLE_PALETTE_COVERAGE, intrinsic, label_masks, min_mask_area, palette_coverage, sample_mask,
-    score_masks,
-};
+use crate::decompose::{intrinsic, label_masks, min_mask_area, sample_mask, score_masks};
 use crate::imageio::{resize_rgb, working_size};
 use crate::render::Image;
 
@@ -30,18 +28,38 @@ pub(crate) struct Decomposition {
     pub candidates: Vec<Candidate>,
     /// The mode to run.
     pub mode: ResolvedMode,
+    /// Why (see [`resolve_mode`]).
+    pub mode_reason: String,
     /// Whether the candidates are the client's masks (or label map) rather than covec's own.
     pub masks_given: bool,
 }
 
-/// Resolves `auto` from the working-size target: `simple` when a few exact colours cover much
-/// of it (see [`palette_coverage`]).
-pub(crate) fn resolve_mode(mode: Mode, target: &Image) -> ResolvedMode {
+/// Resolves `auto` (see [`look`]): `simple` for flat artwork, `photo` for smooth shading or
+/// photographic texture. Returns the mode and why. `auto` looks at the input at up to
+/// [`ANALYSIS_SIZE`] (or the working size, when larger), not at `target` alone: a small
+/// working size blurs the details of flat artwork into what reads as texture.
+pub(crate) fn resolve_mode(
+    mode: Mode,
+    image: &image::DynamicImage,
+    target: &Image,
+) -> (ResolvedMode, String) {
     match mode {
-        Mode::Photo => ResolvedMode::Photo,
-        Mode::Simple => ResolvedMode::Simple,
-        Mode::Auto if palette_coverage(target) >= SIMPLE_PALETTE_COVERAGE => ResolvedMode::Simple,
-        Mode::Auto => ResolvedMode::Photo,
+        Mode::Photo => (ResolvedMode::Photo, "photo mode was asked for".into()),
+        Mode::Simple => (ResolvedMode::Simple, "simple mode was asked for".into()),
+        Mode::Auto => {
+            let size = ANALYSIS_SIZE.max(target.width.max(target.height) as u32);
+            let (w, h) = working_size(image.width(), image.height(), size);
+            let look = if (w as usize, h as usize) == (target.width, target.height) {
+                look(target)
+            } else {
+                look(&resize_rgb(image, w, h))
+            };
+            let mode = match look {
+                Look::Artwork(_) => ResolvedMode::Simple,
+                Look::Photographic(_) => ResolvedMode::Photo,
+            };
+            (mode, format!("auto: {}", look.reason()))
+        }
     }
 }
 
@@ -50,7 +68,7 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
     let (ow, oh) = (inputs.image.width(), inputs.image.height());
     let (w, h) = working_size(ow, oh, params.max_size);
     let target = resize_rgb(&inputs.image, w, h);
-    let mode = resolve_mode(params.mode, &target);
+    let (mode, mode_reason) = resolve_mode(params.mode, &inputs.image, &target);
     let albedo = match (&inputs.albedo, mode) {
         (Some(map), _) => resize_rgb(map, w, h),
         (None, ResolvedMode::Simple) => target.clone(),
@@ -91,6 +109,7 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
         albedo,
         candidates,
         mode,
+        mode_reason,
         masks_given,
     }
 }

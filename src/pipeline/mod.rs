@@ -74,6 +74,7 @@ pub(crate) fn run_with(
     inputs.check()?;
     let context = RunContext::new(observer, cancel, stage::provisional_stages(params.mode));
     let mut work = Work::Start;
+    let mut mode_reason = String::new();
     let mut index = 0;
     while index < context.stages().len() {
         let stage = context.stage(index)?;
@@ -84,6 +85,12 @@ pub(crate) fn run_with(
                 stage.preview_as("input", &decomposition.target);
                 stage.preview_as("albedo-map", &decomposition.albedo);
                 context.set_stages(decomposition.mode.stages());
+                tracing::info!(
+                    mode = decomposition.mode.name(),
+                    reason = %decomposition.mode_reason,
+                    "mode chosen"
+                );
+                mode_reason = decomposition.mode_reason.clone();
                 stage.iteration(1, 1, None)?;
                 Work::Decomposed(decomposition)
             }
@@ -115,7 +122,14 @@ pub(crate) fn run_with(
                 mode,
                 ..
             } = *optimisation;
-            Ok((Output { scene, mode }, report))
+            Ok((
+                Output {
+                    scene,
+                    mode,
+                    mode_reason,
+                },
+                report,
+            ))
         }
         _ => Err(Error::Internal(
             "the stage list ended before the optimisation".into(),

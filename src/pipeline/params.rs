@@ -16,7 +16,8 @@ use crate::scene::Scene;
 #[cfg_attr(feature = "service", derive(utoipa::ToSchema))]
 #[serde(rename_all = "lowercase")]
 pub enum Mode {
-    /// Pick `simple` or `photo` from the image itself.
+    /// Pick `simple` or `photo` from the image itself: `simple` for flat artwork, `photo` for
+    /// smooth shading or photographic texture, however much flat background surrounds it.
     #[default]
     Auto,
     /// Albedo + shade + light (the paper's main method).
@@ -260,6 +261,9 @@ pub struct Output {
     pub scene: Scene,
     /// The mode actually run (`auto` resolved).
     pub mode: ResolvedMode,
+    /// Why that mode, one sentence: the request, or what `auto` saw in the image (flat
+    /// artwork; smooth shading or photographic texture).
+    pub mode_reason: String,
 }
 
 impl Output {

@@ -211,6 +211,9 @@ pub struct JobRecord {
     pub inputs: InputManifest,
     /// The mode actually run, once known.
     pub mode: Option<Mode>,
+    /// Why that mode (the request, or what `auto` saw in the image), once known.
+    #[serde(default)]
+    pub mode_reason: Option<String>,
     pub progress: Option<ProgressView>,
     /// Preview names (`<name>.png` under `previews/`), in the order the stages produced them.
     pub previews: Vec<String>,
@@ -278,6 +281,7 @@ impl JobRecord {
             params,
             inputs,
             mode: None,
+            mode_reason: None,
             progress: None,
             previews: Vec::new(),
             cancel_reason: None,
@@ -465,6 +469,10 @@ pub struct JobView {
     /// The mode actually run, once known.
     #[schema(required)]
     pub mode: Option<Mode>,
+    /// Why that mode, once known: the request, or what `auto` saw in the image (flat artwork;
+    /// smooth shading or photographic texture).
+    #[schema(required)]
+    pub mode_reason: Option<String>,
     /// A stop was asked for; a running job stops within one iteration.
     pub cancel_requested: bool,
     #[schema(required)]
@@ -713,6 +721,7 @@ impl JobView {
             progress: record.progress.clone(),
             params: record.params.clone(),
             mode: record.mode,
+            mode_reason: record.mode_reason.clone(),
             cancel_requested: record.cancel_requested,
             cancel_reason: record.cancel_reason,
             error: record.error.clone(),

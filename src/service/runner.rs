@@ -119,7 +119,7 @@ impl Runner {
             return Settled::Deleted;
         }
         let label = match &outcome {
-            Outcome::Succeeded(_) => "succeeded",
+            Outcome::Succeeded(..) => "succeeded",
             Outcome::Failed(_) => "failed",
             Outcome::Canceled => "canceled",
             Outcome::Interrupted => "interrupted",
@@ -131,8 +131,11 @@ impl Runner {
             "finished"
         );
         match outcome {
-            Outcome::Succeeded(mode) => {
-                entry.record.send_modify(|record| record.mode = Some(mode));
+            Outcome::Succeeded(mode, reason) => {
+                entry.record.send_modify(|record| {
+                    record.mode = Some(mode);
+                    record.mode_reason = Some(reason);
+                });
                 entry.end(Status::Succeeded, None, None, self.retention);
             }
             Outcome::Failed(error) => entry.end(
@@ -228,7 +231,7 @@ impl Runner {
         deadline.abort();
         match result {
             Ok(Ok(output)) => match self.write_results(entry, &output) {
-                Ok(()) => Outcome::Succeeded(output.mode.into()),
+                Ok(()) => Outcome::Succeeded(output.mode.into(), output.mode_reason.clone()),
                 Err(error) => Outcome::Failed(ApiError::from(error)),
             },
             Ok(Err(pipeline::Error::Canceled)) => match entry.cancel_reason() {
@@ -276,7 +279,8 @@ impl Runner {
 }
 
 enum Outcome {
-    Succeeded(pipeline::Mode),
+    /// The mode run and why.
+    Succeeded(pipeline::Mode, String),
     Failed(ApiError),
     Canceled,
     /// Stopped by shutdown; runs again after restart.

@@ -184,6 +184,40 @@ pub fn blobs_photo(w: u32, h: u32) -> image::RgbImage {
     })
 }
 
+/// A lit sphere on a flat backdrop, as a renderer draws it with no noise: Lambertian shading
+/// of `albedo` (ambient 0.12) with a Blinn-Phong highlight, light from the upper left, each
+/// pixel the mean of 4 × 4 samples, 8-bit. The sphere's radius is 0.3 of the side; `size²`.
+pub fn lit_sphere(size: u32, albedo: [f32; 3], backdrop: [f32; 3]) -> image::RgbImage {
+    let unit = |d: [f32; 3]| {
+        let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        d.map(|c| c / n)
+    };
+    let dot = |a: [f32; 3], b: [f32; 3]| (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]).max(0.0);
+    let light = unit([-1.0, -1.0, 1.2]);
+    let half = unit([light[0], light[1], light[2] + 1.0]);
+    let colour = |u: f32, v: f32| {
+        let (x, y) = (u / 0.6, v / 0.6);
+        let d2 = x * x + y * y;
+        if d2 >= 1.0 {
+            return backdrop;
+        }
+        let normal = [x, y, (1.0 - d2).sqrt()];
+        let (lit, shine) = (dot(normal, light), dot(normal, half).powi(40));
+        albedo.map(|a| (a * (0.12 + 0.88 * lit) + 0.4 * shine).min(1.0))
+    };
+    image::RgbImage::from_fn(size, size, |x, y| {
+        let mut sum = [0.0f32; 3];
+        for k in 0..16 {
+            let (sx, sy) = ((k % 4) as f32 + 0.5, (k / 4) as f32 + 0.5);
+            let u = (x as f32 + sx / 4.0) / size as f32 * 2.0 - 1.0;
+            let v = (y as f32 + sy / 4.0) / size as f32 * 2.0 - 1.0;
+            let c = colour(u, v);
+            (0..3).for_each(|i| sum[i] += c[i] / 16.0);
+        }
+        image::Rgb(sum.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8))
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
