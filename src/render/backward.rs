@@ -3,17 +3,25 @@
 //! Work is split into bands of [`STRIP_ROWS`] rows, one rayon task each, and every band writes
 //! its own partial gradients; [`Totals::reduce`] adds them in band order, so the result does not
 //! depend on the thread count. Inside a band, passes of `rows_per_pass` rows:
-//! 1. rasterise every path meeting the pass, keeping its signed area per pixel of its row spans;
-//! 2. per row, composite forwards keeping the colour below each path (never reconstructed by
-//!    division, which breaks down at alpha 1), then walk the paths backwards: colour and
-//!    opacity gradients, and dL/d(signed area) written over the signed area;
+//! 1. the signed areas of every path meeting the pass, kept for whole [`GROUP`]s of pixels: the
+//!    forward's (when it kept them) or scan-converted again;
+//! 2. per row, per group of [`GROUP`] pixels, the paths covering the group in paint order, with
+//!    the group's colour, transmittance and dL/dPixel in registers:
+//!    - forwards: `u_k = g · (c_k − C_{k−1})`, with `g` the final dL/dPixel and `C_{k−1}` the
+//!      colour below path `k` (composited, never reconstructed by division, which breaks down
+//!      at alpha 1), kept on a small stack;
+//!    - backwards: with `T_k = Π_{j>k} (1 − α_j)` the transmittance above path `k`, dL/dPixel
+//!      at path `k` is `T_k · g`, so dL/dα_k = `T_k · u_k`, dL/dcolour += `α_k · T_k · g`, and
+//!      dL/d(signed area) is written next to the signed area. A group whose `g` is zero costs
+//!      no compositing; once `T` is below [`TRANSMITTANCE_FLOOR`] in every lane, nothing
+//!      further down the stack can change the pixel and the walk stops;
 //! 3. push dL/d(signed area) through each path's edges in the pass (see `raster`).
 //!
-//! Memory per pass grows with the paths' overlap, so deep scenes use fewer rows per pass
-//! ([`rows_per_pass`]) to keep the working set in cache.
+//! Memory per pass grows with the paths' overlap, so deep scenes that are scan-converted again
+//! use fewer rows per pass ([`rows_per_pass`]) to keep the working set in cache.
 
 use super::flatten::FlatScene;
-use super::raster::{self, RowSpan};
+use super::raster::{self, GROUP, RowSpan};
 use super::{
     Backdrop, Image, PathGrad, STRIP_ROWS, StripAreas, StripCoverage, meets_strip, strip_rows,
 };
@@ -27,6 +35,11 @@ const PASS_AREA_BYTES: f64 = 1024.0 * 1024.0;
 /// shapes) the backward takes the one-sided derivative towards less coverage, and the small
 /// slack keeps prefix-sum rounding (`|acc| = 1 + ulp`) from zeroing it.
 const SATURATION: f32 = 1.0 + 1e-5;
+
+/// Transmittance below which a pixel's paths further down the stack get no gradient there
+/// (2⁻⁶⁴): what they could change is below f32's resolution of the pixel, and their tiny
+/// products would be subnormal numbers, which cost a hundred times a normal one.
+const TRANSMITTANCE_FLOOR: f32 = 1.0 / 18_446_744_073_709_551_616.0;
 
 /// Rows per pass: the largest power of two ≤ `STRIP_ROWS` whose signed-area buffer fits
 /// [`PASS_AREA_BYTES`] at the scene's mean overlap depth (sum of clipped bounding-box areas
@@ -78,16 +91,62 @@ struct PathPartial {
 pub(super) struct Workspace {
     /// Band slot of each path (`u32::MAX`: not in the band).
     slot: Vec<u32>,
-    /// The pass's active paths (band slots), their row spans and signed-area offsets.
+    /// The pass's active paths (band slots), in paint order, and per active path and row of
+    /// the pass its span and the offset of its values in `area`.
     active: Vec<u32>,
     spans: Vec<RowSpan>,
     offsets: Vec<u32>,
-    /// Signed area per active path and span pixel; overwritten by dL/d(signed area).
+    /// Signed areas of the pass, for whole groups ([`RowSpan::groups`]); overwritten by
+    /// dL/d(signed area).
     area: Vec<f32>,
-    /// One row: the colour below each active path over its span, stacked in paint order.
-    below: Vec<f32>,
-    row_color: Vec<f32>,
-    row_grad: Vec<f32>,
+    rows: RowWork,
+}
+
+/// A group's worth of one value per pixel.
+type Lanes = [f32; GROUP];
+
+/// Buffers of the per-row work.
+#[derive(Default)]
+struct RowWork {
+    /// The row's paths with a non-empty span, in paint order.
+    paths: Vec<RowPath>,
+    /// Per group (and one past the last): whether a path of the row starts or ends there.
+    breaks: Vec<bool>,
+    /// The row's paths (indices into `paths`) by first group, in paint order within a group.
+    starts: Vec<u32>,
+    /// Where each group's entries in `starts` begin (one more entry than groups).
+    start_at: Vec<u32>,
+    /// Indices into `paths` of the paths covering the current group, in paint order, and the
+    /// buffer the next group's list is merged into.
+    cover: Vec<u32>,
+    next: Vec<u32>,
+    /// `u_k` of each covering path of the current group.
+    stack: Vec<Lanes>,
+    /// Per band slot: lane sums of dL/dcolour and dL/dopacity over the current row.
+    sums: Vec<PaintSums>,
+    /// The row's backdrop and dL/dPixel as channel planes (R…, G…, B…), whole groups wide.
+    color: Vec<f32>,
+    grad: Vec<f32>,
+}
+
+/// One path of a row.
+#[derive(Clone, Copy)]
+struct RowPath {
+    slot: u32,
+    /// Its groups `g_lo..g_hi` ([`RowSpan::groups`]).
+    g_lo: u32,
+    g_hi: u32,
+    /// Where its signed areas start (at group `g_lo`).
+    offset: u32,
+    color: [f32; 3],
+    opacity: f32,
+}
+
+/// Per-lane running sums of one path's paint gradients.
+#[derive(Clone, Copy, Default)]
+struct PaintSums {
+    color: [Lanes; 3],
+    opacity: Lanes,
 }
 
 /// Sums of the band partials, kept between calls.
@@ -148,7 +207,26 @@ pub(super) struct Band<'a> {
 }
 
 impl Band<'_> {
+    /// Adds the band's partial gradients into `out`. Compiled for the widest vector unit the
+    /// processor has; every build does the same arithmetic lane by lane, so the results are
+    /// bit-identical.
     pub fn run(&self, out: &mut BandGrads, ws: &mut Workspace, coverage: &mut StripCoverage<f32>) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor has AVX2.
+            return unsafe { self.run_avx2(out, ws, coverage) };
+        }
+        self.run_in(out, ws, coverage);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn run_avx2(&self, out: &mut BandGrads, ws: &mut Workspace, coverage: &mut StripCoverage<f32>) {
+        self.run_in(out, ws, coverage);
+    }
+
+    #[inline(always)]
+    fn run_in(&self, out: &mut BandGrads, ws: &mut Workspace, coverage: &mut StripCoverage<f32>) {
         let (width, height) = (self.d_out.width, self.d_out.height);
         let (band0, band_rows) = strip_rows(self.band, height);
         out.paths.clear();
@@ -170,6 +248,8 @@ impl Band<'_> {
                 out.verts.resize(out.verts.len() + fp.verts.len(), [0.0; 2]);
             }
         }
+        ws.rows.sums.clear();
+        ws.rows.sums.resize(out.paths.len(), PaintSums::default());
         coverage.prepare(width);
         let mut row0 = band0;
         while row0 < band0 + band_rows {
@@ -181,6 +261,7 @@ impl Band<'_> {
         }
     }
 
+    #[inline(always)]
     fn pass(
         &self,
         row0: usize,
@@ -189,85 +270,25 @@ impl Band<'_> {
         ws: &mut Workspace,
         cov: &mut StripCoverage<f32>,
     ) {
-        let width = self.d_out.width;
-
         // 1. Signed areas of every path meeting the pass.
         ws.active.clear();
         ws.spans.clear();
         ws.offsets.clear();
+        ws.area.clear();
         match self.stored {
             Some(stored) => self.stored_areas(stored, row0, rows, ws),
             None => self.scan_areas(row0, rows, ws, cov),
         }
 
-        // 2. Per row: composite forwards keeping the colour below each path, then backwards.
-        // Row buffers are channel planes (R…, G…, B…) so the span loops vectorise.
-        ws.row_color.resize(width * 3, 0.0);
-        ws.row_grad.resize(width * 3, 0.0);
+        // 2. Per row, per group: paint gradients and dL/d(signed area).
         for r in 0..rows {
-            self.fill_backdrop(row0 + r, &mut ws.row_color);
-            let mut below_len = 0;
-            for (k, &slot) in ws.active.iter().enumerate() {
-                let span = ws.spans[k * rows + r];
-                let n = span.len();
-                if n == 0 {
-                    continue;
-                }
-                let path = &self.paths[out.paths[slot as usize].path as usize];
-                let off = ws.offsets[k * rows + r] as usize;
-                if ws.below.len() < below_len + 3 * n {
-                    ws.below.resize(below_len + 3 * n, 0.0);
-                }
-                let below = &mut ws.below[below_len..below_len + 3 * n];
-                below_len += 3 * n;
-                let (lo, end) = (span.lo as usize, span.end as usize);
-                let (cr, rest) = ws.row_color.split_at_mut(width);
-                let (cg, cb) = rest.split_at_mut(width);
-                composite_span(
-                    &ws.area[off..off + n],
-                    path.opacity,
-                    path.color,
-                    [&mut cr[lo..end], &mut cg[lo..end], &mut cb[lo..end]],
-                    below,
-                );
-            }
-            let y = row0 + r;
-            let d_row = &self.d_out.data[y * width * 3..(y + 1) * width * 3];
-            let (gr, rest) = ws.row_grad.split_at_mut(width);
-            let (gg, gb) = rest.split_at_mut(width);
-            for (x, px) in d_row.chunks_exact(3).enumerate() {
-                gr[x] = px[0];
-                gg[x] = px[1];
-                gb[x] = px[2];
-            }
-            for (k, &slot) in ws.active.iter().enumerate().rev() {
-                let span = ws.spans[k * rows + r];
-                let n = span.len();
-                if n == 0 {
-                    continue;
-                }
-                let partial = &mut out.paths[slot as usize];
-                let path = &self.paths[partial.path as usize];
-                let off = ws.offsets[k * rows + r] as usize;
-                below_len -= 3 * n;
-                let (lo, end) = (span.lo as usize, span.end as usize);
-                let (dc, dop) = backward_span(
-                    &mut ws.area[off..off + n],
-                    path.opacity,
-                    path.color,
-                    [&mut gr[lo..end], &mut gg[lo..end], &mut gb[lo..end]],
-                    &ws.below[below_len..below_len + 3 * n],
-                );
-                for (sum, d) in partial.color.iter_mut().zip(dc) {
-                    *sum += d as f64;
-                }
-                partial.opacity += dop as f64;
-            }
+            self.row(row0 + r, r, rows, ws, out);
         }
 
         // 3. dL/d(signed area) through the edges to the flattened vertices.
+        let BandGrads { paths, verts } = out;
         for (k, &slot) in ws.active.iter().enumerate() {
-            let partial = &out.paths[slot as usize];
+            let partial = &paths[slot as usize];
             let fp = &self.flat.paths[partial.path as usize];
             let start = partial.verts as usize;
             let spans = &ws.spans[k * rows..(k + 1) * rows];
@@ -278,7 +299,8 @@ impl Band<'_> {
                 let span = spans[r];
                 let x = cx as u32;
                 if cx >= 0 && x >= span.lo && x < span.end {
-                    area[offsets[r] as usize + (x - span.lo) as usize]
+                    let lead = span.groups().0 * GROUP;
+                    area[offsets[r] as usize + x as usize - lead]
                 } else {
                     0.0
                 }
@@ -287,17 +309,266 @@ impl Band<'_> {
                 self.flat.outline(partial.path as usize),
                 row0 as i32,
                 rows,
-                width,
-                &mut out.verts[start..start + fp.verts.len()],
+                self.d_out.width,
+                &mut verts[start..start + fp.verts.len()],
                 lookup,
             );
         }
     }
+
+    /// Step 2 for row `y`, row `r` of a pass of `rows`.
+    #[inline(always)]
+    fn row(&self, y: usize, r: usize, rows: usize, ws: &mut Workspace, out: &mut BandGrads) {
+        let work = &mut ws.rows;
+        work.paths.clear();
+        for (k, &slot) in ws.active.iter().enumerate() {
+            let span = ws.spans[k * rows + r];
+            if span.len() == 0 {
+                continue;
+            }
+            let (g_lo, g_hi) = span.groups();
+            let path = &self.paths[out.paths[slot as usize].path as usize];
+            work.paths.push(RowPath {
+                slot,
+                g_lo: g_lo as u32,
+                g_hi: g_hi as u32,
+                offset: ws.offsets[k * rows + r],
+                color: path.color,
+                opacity: path.opacity,
+            });
+        }
+        if work.paths.is_empty() {
+            return;
+        }
+        let width = self.d_out.width;
+        let groups = width.div_ceil(GROUP);
+        let planes = groups * GROUP;
+        work.color.resize(3 * planes, 0.0);
+        work.grad.resize(3 * planes, 0.0);
+        self.fill_backdrop(y, planes, &mut work.color);
+        let d_row = &self.d_out.data[3 * y * width..3 * (y + 1) * width];
+        {
+            let (gr, rest) = work.grad.split_at_mut(planes);
+            let (gg, gb) = rest.split_at_mut(planes);
+            for (x, px) in d_row.chunks_exact(3).enumerate() {
+                gr[x] = px[0];
+                gg[x] = px[1];
+                gb[x] = px[2];
+            }
+            for plane in [gr, gg, gb] {
+                plane[width..].fill(0.0);
+            }
+        }
+        work.index_starts(groups);
+        if work.stack.len() < work.paths.len() {
+            work.stack.resize(work.paths.len(), [0.0; GROUP]);
+        }
+        walk_groups(work, &mut ws.area, groups);
+        // The row's lane sums into the band's partials.
+        for p in &work.paths {
+            let sums = &mut work.sums[p.slot as usize];
+            let partial = &mut out.paths[p.slot as usize];
+            for c in 0..3 {
+                partial.color[c] += sums.color[c].iter().sum::<f32>() as f64;
+            }
+            partial.opacity += sums.opacity.iter().sum::<f32>() as f64;
+            *sums = PaintSums::default();
+        }
+    }
+}
+
+/// The groups `0..groups` of one row (step 2's inner loop).
+#[inline(always)]
+fn walk_groups(work: &mut RowWork, area: &mut [f32], groups: usize) {
+    let planes = groups * GROUP;
+    work.cover.clear();
+    for g in 0..groups {
+        if work.breaks[g] {
+            work.advance_cover(g);
+        }
+        if work.cover.is_empty() {
+            continue;
+        }
+        let lanes = |plane: &[f32], c: usize| -> Lanes {
+            let at = c * planes + g * GROUP;
+            plane[at..at + GROUP].try_into().expect("a group")
+        };
+        let group = Group {
+            index: g,
+            grad: [0, 1, 2].map(|c| lanes(&work.grad, c)),
+            color: [0, 1, 2].map(|c| lanes(&work.color, c)),
+        };
+        group.run(
+            &work.paths,
+            &work.cover,
+            area,
+            &mut work.stack,
+            &mut work.sums,
+        );
+    }
+}
+
+impl RowWork {
+    /// Buckets the row's paths by first group (`starts`, `start_at`) and marks in `breaks`
+    /// the groups where the covering paths change.
+    fn index_starts(&mut self, groups: usize) {
+        self.breaks.clear();
+        self.breaks.resize(groups + 1, false);
+        self.start_at.clear();
+        self.start_at.resize(groups + 2, 0);
+        for p in &self.paths {
+            self.breaks[p.g_lo as usize] = true;
+            self.breaks[p.g_hi as usize] = true;
+            self.start_at[p.g_lo as usize + 2] += 1;
+        }
+        for g in 2..self.start_at.len() {
+            self.start_at[g] += self.start_at[g - 1];
+        }
+        // Counting sort, stable: `start_at[g + 1]` is the next free place of group g.
+        self.starts.clear();
+        self.starts.resize(self.paths.len(), 0);
+        for (i, p) in self.paths.iter().enumerate() {
+            let at = &mut self.start_at[p.g_lo as usize + 1];
+            self.starts[*at as usize] = i as u32;
+            *at += 1;
+        }
+    }
+
+    /// Makes `cover` the paths covering group `g`: those of the last list still covering it,
+    /// merged in paint order with those starting at `g`.
+    fn advance_cover(&mut self, g: usize) {
+        let starting = &self.starts[self.start_at[g] as usize..self.start_at[g + 1] as usize];
+        let paths = &self.paths;
+        let mut staying = self
+            .cover
+            .iter()
+            .copied()
+            .filter(|&i| paths[i as usize].g_hi as usize > g)
+            .peekable();
+        let mut starting = starting.iter().copied().peekable();
+        self.next.clear();
+        loop {
+            let take_staying = match (staying.peek(), starting.peek()) {
+                (Some(&a), Some(&b)) => a < b,
+                (Some(_), None) => true,
+                (None, Some(_)) => false,
+                (None, None) => break,
+            };
+            let i = if take_staying {
+                staying.next()
+            } else {
+                starting.next()
+            };
+            self.next.extend(i);
+        }
+        std::mem::swap(&mut self.cover, &mut self.next);
+    }
+}
+
+/// One group of a row: its dL/dPixel and backdrop colour, per channel.
+struct Group {
+    index: usize,
+    grad: [Lanes; 3],
+    color: [Lanes; 3],
+}
+
+impl Group {
+    /// The forward and backward walks over the paths `cover` (indices into `paths`, in paint
+    /// order) covering this group; their signed areas in `area` become dL/d(signed area).
+    #[inline(always)]
+    fn run(
+        &self,
+        paths: &[RowPath],
+        cover: &[u32],
+        area: &mut [f32],
+        stack: &mut [Lanes],
+        sums: &mut [PaintSums],
+    ) {
+        let at = |p: &RowPath| p.offset as usize + (self.index - p.g_lo as usize) * GROUP;
+        let g = self.grad;
+        if g.iter().flatten().all(|&v| v == 0.0) {
+            for &i in cover {
+                let o = at(&paths[i as usize]);
+                area[o..o + GROUP].fill(0.0);
+            }
+            return;
+        }
+        let lanes =
+            |area: &[f32], o: usize| -> Lanes { area[o..o + GROUP].try_into().expect("a group") };
+        let [mut cr, mut cg, mut cb] = self.color;
+        for (s, &i) in cover.iter().enumerate() {
+            let p = &paths[i as usize];
+            let acc = lanes(area, at(p));
+            let a: Lanes = std::array::from_fn(|l| coverage(acc[l]) * p.opacity);
+            let dr: Lanes = std::array::from_fn(|l| p.color[0] - cr[l]);
+            let dg: Lanes = std::array::from_fn(|l| p.color[1] - cg[l]);
+            let db: Lanes = std::array::from_fn(|l| p.color[2] - cb[l]);
+            stack[s] = std::array::from_fn(|l| g[0][l] * dr[l] + g[1][l] * dg[l] + g[2][l] * db[l]);
+            for l in 0..GROUP {
+                cr[l] += a[l] * dr[l];
+                cg[l] += a[l] * dg[l];
+                cb[l] += a[l] * db[l];
+            }
+        }
+        let mut t: Lanes = [1.0; GROUP];
+        for (s, &i) in cover.iter().enumerate().rev() {
+            let p = &paths[i as usize];
+            let o = at(p);
+            let acc = lanes(area, o);
+            let cov: Lanes = std::array::from_fn(|l| coverage(acc[l]));
+            let u = stack[s];
+            let v: Lanes = std::array::from_fn(|l| t[l] * u[l]);
+            let a_t: Lanes = std::array::from_fn(|l| cov[l] * p.opacity * t[l]);
+            let sum = &mut sums[p.slot as usize];
+            for c in 0..3 {
+                sum.color[c] = std::array::from_fn(|l| sum.color[c][l] + a_t[l] * g[c][l]);
+            }
+            sum.opacity = std::array::from_fn(|l| sum.opacity[l] + cov[l] * v[l]);
+            // dL/d(signed area): dL/dα · opacity · sign(area) where the coverage is not
+            // saturated (the sign applied by flipping the sign bit, as × ±1 would).
+            let d: Lanes = std::array::from_fn(|l| {
+                let signed =
+                    f32::from_bits((v[l] * p.opacity).to_bits() ^ (acc[l].to_bits() & SIGN));
+                if acc[l].abs() <= SATURATION {
+                    signed
+                } else {
+                    0.0
+                }
+            });
+            area[o..o + GROUP].copy_from_slice(&d);
+            let rest: Lanes = std::array::from_fn(|l| t[l] - a_t[l]);
+            t = std::array::from_fn(|l| {
+                if rest[l] < TRANSMITTANCE_FLOOR {
+                    0.0
+                } else {
+                    rest[l]
+                }
+            });
+            if t.iter().all(|&v| v == 0.0) {
+                for &j in &cover[..s] {
+                    let o = at(&paths[j as usize]);
+                    area[o..o + GROUP].fill(0.0);
+                }
+                return;
+            }
+        }
+    }
+}
+
+/// The sign bit of an f32.
+const SIGN: u32 = 0x8000_0000;
+
+/// `min(1, |acc|)`, in the form that vectorises.
+#[inline(always)]
+fn coverage(acc: f32) -> f32 {
+    let v = acc.abs();
+    if v < 1.0 { v } else { 1.0 }
 }
 
 impl Band<'_> {
     /// Step 1 by scan conversion: the signed areas of every path meeting rows
     /// `row0..row0 + rows` into `ws`.
+    #[inline(always)]
     fn scan_areas(
         &self,
         row0: usize,
@@ -306,45 +577,31 @@ impl Band<'_> {
         cov: &mut StripCoverage<f32>,
     ) {
         let width = self.d_out.width;
-        let stride = width + 2;
-        let mut total = 0usize;
         for (i, fp) in self.flat.paths.iter().enumerate() {
             if fp.verts.is_empty() || !meets_strip(fp.bbox, row0, rows, width) {
                 continue;
             }
             ws.active.push(ws.slot[i]);
+            let spans = &mut cov.spans[..rows];
             raster::accumulate(
                 self.flat.outline(i),
                 row0 as i32,
                 rows,
                 width,
                 &mut cov.delta,
-                &mut cov.spans,
+                spans,
             );
-            let first = total;
-            for &span in &cov.spans[..rows] {
+            raster::prefix_rows(&mut cov.delta, spans, width);
+            let stride = width + 2;
+            for (r, &span) in spans.iter().enumerate() {
                 ws.spans.push(span);
-                ws.offsets.push(total as u32);
-                total += span.len();
-            }
-            if ws.area.len() < total {
-                ws.area.resize(total, 0.0);
-            }
-            let mut off = first;
-            for (r, &span) in cov.spans[..rows].iter().enumerate() {
-                if span.len() == 0 {
-                    continue;
+                ws.offsets.push(ws.area.len() as u32);
+                if span.len() > 0 {
+                    let row = &cov.delta[r * stride..r * stride + width];
+                    raster::push_groups(row, span, &mut ws.area);
                 }
-                let dst = &mut ws.area[off..off + span.len()];
-                let lo = span.lo as usize;
-                raster::prefix_row(
-                    &mut cov.delta[r * stride..(r + 1) * stride],
-                    span,
-                    width,
-                    |x, acc| dst[x - lo] = acc,
-                );
-                off += span.len();
             }
+            raster::clear_rows(&mut cov.delta, spans, width);
         }
     }
 
@@ -353,7 +610,6 @@ impl Band<'_> {
     fn stored_areas(&self, stored: &StripAreas<f32>, row0: usize, rows: usize, ws: &mut Workspace) {
         let width = self.d_out.width;
         let (band0, band_rows) = strip_rows(self.band, self.d_out.height);
-        let mut total = 0usize;
         for (k, &i) in stored.paths.iter().enumerate() {
             let fp = &self.flat.paths[i as usize];
             if !meets_strip(fp.bbox, row0, rows, width) {
@@ -361,20 +617,15 @@ impl Band<'_> {
             }
             ws.active.push(ws.slot[i as usize]);
             let first = k * band_rows + (row0 - band0);
-            for (&span, &offset) in stored.spans[first..first + rows]
-                .iter()
-                .zip(&stored.offsets[first..first + rows])
-            {
+            let (from, start) = (stored.offsets[first] as usize, ws.area.len());
+            let mut len = 0;
+            for &span in &stored.spans[first..first + rows] {
                 ws.spans.push(span);
-                ws.offsets.push(total as u32);
-                let n = span.len();
-                if ws.area.len() < total + n {
-                    ws.area.resize(total + n, 0.0);
-                }
-                let offset = offset as usize;
-                ws.area[total..total + n].copy_from_slice(&stored.area[offset..offset + n]);
-                total += n;
+                ws.offsets.push((start + len) as u32);
+                len += span.padded_len();
             }
+            // A path's rows are kept one after the other: one copy.
+            ws.area.extend_from_slice(&stored.area[from..from + len]);
         }
     }
 
@@ -388,185 +639,25 @@ impl Band<'_> {
             .all(|&v| v == 0.0)
     }
 
-    /// Row `y` of the backdrop as channel planes (R…, G…, B…) in `planes`.
-    fn fill_backdrop(&self, y: usize, planes: &mut [f32]) {
+    /// Row `y` of the backdrop as channel planes (R…, G…, B…), `planes` values each, in `out`.
+    fn fill_backdrop(&self, y: usize, planes: usize, out: &mut [f32]) {
         let width = self.d_out.width;
         match self.backdrop {
             Backdrop::Color(color) => {
-                for (plane, &v) in planes.chunks_exact_mut(width).zip(&color) {
+                for (plane, &v) in out.chunks_exact_mut(planes).zip(&color) {
                     plane.fill(v);
                 }
             }
             Backdrop::Image(image) => {
                 let row = &image.data[3 * y * width..3 * (y + 1) * width];
-                let (r, rest) = planes.split_at_mut(width);
-                let (g, b) = rest.split_at_mut(width);
+                let (r, rest) = out.split_at_mut(planes);
+                let (g, b) = rest.split_at_mut(planes);
                 for (x, px) in row.chunks_exact(3).enumerate() {
                     r[x] = px[0];
                     g[x] = px[1];
                     b[x] = px[2];
                 }
             }
-        }
-    }
-}
-
-/// "Over" for one path across one span: saves the colour below (`below` = R, G, B planes of the
-/// span) and composites `color` with alpha `min(1, |area|) · opacity` into the row planes.
-#[inline(always)]
-fn composite_span(
-    area: &[f32],
-    opacity: f32,
-    color: [f32; 3],
-    row: [&mut [f32]; 3],
-    below: &mut [f32],
-) {
-    let n = area.len();
-    let [r, g, b] = row;
-    let (r, g, b) = (&mut r[..n], &mut g[..n], &mut b[..n]);
-    let (br, rest) = below.split_at_mut(n);
-    let (bg, bb) = rest.split_at_mut(n);
-    let (bb, [cr, cg, cb]) = (&mut bb[..n], color);
-    br.copy_from_slice(r);
-    bg.copy_from_slice(g);
-    bb.copy_from_slice(b);
-    for i in 0..n {
-        let a = area[i].abs().min(1.0) * opacity;
-        r[i] += a * (cr - r[i]);
-        g[i] += a * (cg - g[i]);
-        b[i] += a * (cb - b[i]);
-    }
-}
-
-/// Lanes of the span reductions: a fixed width, so the summation order (and so every bit of the
-/// result) is the same on every machine, while the compiler can vectorise the lanes.
-const LANES: usize = 8;
-
-/// The backward of [`composite_span`]: given dL/d(colour above) in `grad` (planes), returns
-/// dL/d(colour) and dL/d(opacity) of the path over the span, overwrites `area` with
-/// dL/d(signed area) and turns `grad` into dL/d(colour below).
-#[inline(always)]
-fn backward_span(
-    area: &mut [f32],
-    opacity: f32,
-    color: [f32; 3],
-    grad: [&mut [f32]; 3],
-    below: &[f32],
-) -> ([f32; 3], f32) {
-    let n = area.len();
-    let [gr, gg, gb] = grad;
-    let (br, bg, bb) = (&below[..n], &below[n..2 * n], &below[2 * n..3 * n]);
-    let mut sums = Lanes::default();
-    let full = n - n % LANES;
-    for i in (0..full).step_by(LANES) {
-        let s = i..i + LANES;
-        sums.step(
-            lanes_mut(&mut area[s.clone()]),
-            [
-                lanes_mut(&mut gr[s.clone()]),
-                lanes_mut(&mut gg[s.clone()]),
-                lanes_mut(&mut gb[s.clone()]),
-            ],
-            [lanes(&br[s.clone()]), lanes(&bg[s.clone()]), lanes(&bb[s])],
-            opacity,
-            color,
-        );
-    }
-    if full < n {
-        // The tail, zero-padded: padding lanes have zero coverage and gradient, so they add
-        // exactly nothing.
-        let s = full..n;
-        let pad = |v: &[f32]| {
-            let mut a = [0.0f32; LANES];
-            a[..v.len()].copy_from_slice(v);
-            a
-        };
-        let mut t_area = pad(&area[s.clone()]);
-        let mut t_grad = [
-            pad(&gr[s.clone()]),
-            pad(&gg[s.clone()]),
-            pad(&gb[s.clone()]),
-        ];
-        let t_below = [
-            pad(&br[s.clone()]),
-            pad(&bg[s.clone()]),
-            pad(&bb[s.clone()]),
-        ];
-        let [tr, tg, tb] = &mut t_grad;
-        sums.step(
-            &mut t_area,
-            [tr, tg, tb],
-            [&t_below[0], &t_below[1], &t_below[2]],
-            opacity,
-            color,
-        );
-        let m = n - full;
-        area[s.clone()].copy_from_slice(&t_area[..m]);
-        gr[s.clone()].copy_from_slice(&t_grad[0][..m]);
-        gg[s.clone()].copy_from_slice(&t_grad[1][..m]);
-        gb[s].copy_from_slice(&t_grad[2][..m]);
-    }
-    let sum = |v: [f32; LANES]| v.iter().sum::<f32>();
-    (
-        [sum(sums.color[0]), sum(sums.color[1]), sum(sums.color[2])],
-        sum(sums.opacity),
-    )
-}
-
-fn lanes_mut(v: &mut [f32]) -> &mut [f32; LANES] {
-    v.try_into().expect("a LANES-long chunk")
-}
-
-fn lanes(v: &[f32]) -> &[f32; LANES] {
-    v.try_into().expect("a LANES-long chunk")
-}
-
-/// Per-lane partial sums of dL/d(colour) and dL/d(opacity).
-#[derive(Default)]
-struct Lanes {
-    color: [[f32; LANES]; 3],
-    opacity: [f32; LANES],
-}
-
-impl Lanes {
-    #[inline(always)]
-    fn step(
-        &mut self,
-        area: &mut [f32; LANES],
-        grad: [&mut [f32; LANES]; 3],
-        below: [&[f32; LANES]; 3],
-        opacity: f32,
-        color: [f32; 3],
-    ) {
-        let [gr, gg, gb] = grad;
-        let [br, bg, bb] = below;
-        let [cr, cg, cb] = color;
-        // Whole-array steps in local copies: the shape the SLP vectoriser recognises.
-        let acc = *area;
-        let cov: [f32; LANES] = std::array::from_fn(|l| {
-            let v = acc[l].abs();
-            if v < 1.0 { v } else { 1.0 }
-        });
-        let a: [f32; LANES] = std::array::from_fn(|l| cov[l] * opacity);
-        let (r, g, b) = (*gr, *gg, *gb);
-        let da: [f32; LANES] = std::array::from_fn(|l| {
-            r[l] * (cr - br[l]) + g[l] * (cg - bg[l]) + b[l] * (cb - bb[l])
-        });
-        for l in 0..LANES {
-            self.color[0][l] += r[l] * a[l];
-            self.color[1][l] += g[l] * a[l];
-            self.color[2][l] += b[l] * a[l];
-            self.opacity[l] += da[l] * cov[l];
-            let unsaturated = acc[l].abs() <= SATURATION;
-            area[l] = if unsaturated {
-                da[l] * opacity * 1.0f32.copysign(acc[l])
-            } else {
-                0.0
-            };
-            let keep = 1.0 - a[l];
-            gr[l] = r[l] * keep;
-            gg[l] = g[l] * keep;
-            gb[l] = b[l] * keep;
         }
     }
 }

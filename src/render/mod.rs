@@ -109,20 +109,22 @@ pub enum Backdrop<'a> {
 }
 
 impl Backdrop<'_> {
-    /// Writes the backdrop of rows `row0..row0 + rows` (interleaved RGB) into `pixels`.
-    fn fill_rows<T: Real>(&self, row0: usize, width: usize, pixels: &mut [T]) {
+    /// Writes the backdrop of the `planes[0].len() / width` rows from `row0` into channel
+    /// planes (R…, G…, B…).
+    fn fill_planes<T: Real>(&self, row0: usize, width: usize, planes: [&mut [T]; 3]) {
         match self {
             Backdrop::Color(color) => {
-                let color = color.map(T::from_f32);
-                for px in pixels.chunks_exact_mut(3) {
-                    px.copy_from_slice(&color);
+                for (plane, &v) in planes.into_iter().zip(color) {
+                    plane.fill(T::from_f32(v));
                 }
             }
             Backdrop::Image(image) => {
+                let [r, g, b] = planes;
                 let start = 3 * row0 * width;
-                let src = &image.data[start..start + pixels.len()];
-                for (dst, &v) in pixels.iter_mut().zip(src) {
-                    *dst = T::from_f32(v);
+                let src = &image.data[start..start + 3 * r.len()];
+                for (k, px) in src.chunks_exact(3).enumerate() {
+                    (r[k], g[k], b[k]) =
+                        (T::from_f32(px[0]), T::from_f32(px[1]), T::from_f32(px[2]));
                 }
             }
         }
@@ -266,7 +268,8 @@ struct StoredAreas {
 }
 
 /// One strip's signed areas: for each drawable path meeting the strip (in paint order), one
-/// row span per row of the strip and its values' offset in `area`.
+/// row span per row of the strip and the offset in `area` of its values, kept for the span's
+/// whole groups ([`RowSpan::groups`]: zeros where the groups overhang the span).
 #[derive(Default)]
 pub(crate) struct StripAreas<T> {
     pub paths: Vec<u32>,
@@ -556,11 +559,13 @@ fn meets_strip(bbox: [f32; 4], row0: usize, rows: usize, width: usize) -> bool {
         && bbox[0] < width as f32
 }
 
-/// One path's signed-area deltas over a strip (row stride `width + 2`) and its row spans.
+/// One path's signed-area deltas over a strip (row stride `width + 2`; its signed areas once
+/// summed) and its row spans, and the strip's pixels as channel planes.
 #[derive(Default)]
 struct StripCoverage<T> {
     delta: Vec<T>,
     spans: Vec<RowSpan>,
+    planes: Vec<T>,
 }
 
 impl<T: Real> StripCoverage<T> {
@@ -588,8 +593,35 @@ struct StripJob<'a, T> {
 
 impl<T: Real> StripJob<'_, T> {
     /// Paints the strip into `pixels`; with `store`, also keeps every drawable path's signed
-    /// areas there (those of paths with zero opacity too: the backward needs them).
+    /// areas there (those of paths with zero opacity too: the backward needs them). Compiled
+    /// for the widest vector unit the processor has; every build does the same arithmetic.
     fn render(
+        &self,
+        pixels: &mut [T],
+        scratch: &mut StripCoverage<T>,
+        store: Option<&mut StripAreas<T>>,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor has AVX2.
+            return unsafe { self.render_avx2(pixels, scratch, store) };
+        }
+        self.render_in(pixels, scratch, store);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn render_avx2(
+        &self,
+        pixels: &mut [T],
+        scratch: &mut StripCoverage<T>,
+        store: Option<&mut StripAreas<T>>,
+    ) {
+        self.render_in(pixels, scratch, store);
+    }
+
+    #[inline(always)]
+    fn render_in(
         &self,
         pixels: &mut [T],
         scratch: &mut StripCoverage<T>,
@@ -597,12 +629,18 @@ impl<T: Real> StripJob<'_, T> {
     ) {
         let (flat, width) = (self.flat, self.width);
         let (row0, rows) = strip_rows(self.strip, self.height);
-        self.backdrop.fill_rows(row0, width, pixels);
         scratch.prepare(width);
         if let Some(stored) = store.as_deref_mut() {
             stored.clear();
         }
-        let stride = width + 2;
+        // The strip as channel planes (R…, G…, B…), so each path's rows composite as plain
+        // vector loops; interleaved again at the end.
+        let n = rows * width;
+        scratch.planes.resize(3 * n, T::ZERO);
+        let (pr, rest) = scratch.planes.split_at_mut(n);
+        let (pg, pb) = rest.split_at_mut(n);
+        self.backdrop
+            .fill_planes(row0, width, [&mut *pr, &mut *pg, &mut *pb]);
         for (i, (path, fp)) in self.paths.iter().zip(&flat.paths).enumerate() {
             let paints = path.opacity > 0.0;
             if fp.verts.is_empty()
@@ -611,46 +649,61 @@ impl<T: Real> StripJob<'_, T> {
             {
                 continue;
             }
+            let spans = &mut scratch.spans[..rows];
             raster::accumulate(
                 flat.outline(i),
                 row0 as i32,
                 rows,
                 width,
                 &mut scratch.delta,
-                &mut scratch.spans,
+                spans,
             );
+            raster::prefix_rows(&mut scratch.delta, spans, width);
+            let stride = width + 2;
             if let Some(stored) = store.as_deref_mut() {
                 stored.paths.push(i as u32);
-            }
-            let (op, c) = (T::from_f32(path.opacity), path.color.map(T::from_f32));
-            for r in 0..rows {
-                let span = scratch.spans[r];
-                if let Some(stored) = store.as_deref_mut() {
+                for (r, &span) in spans.iter().enumerate() {
                     stored.spans.push(span);
                     stored.offsets.push(stored.area.len() as u32);
-                }
-                if span.len() == 0 {
-                    continue;
-                }
-                let out = &mut pixels[r * width * 3..(r + 1) * width * 3];
-                let mut composite = |x: usize, acc: T| {
-                    if paints {
-                        let a = acc.abs().min(T::ONE) * op;
-                        let p = &mut out[3 * x..3 * x + 3];
-                        p[0] += a * (c[0] - p[0]);
-                        p[1] += a * (c[1] - p[1]);
-                        p[2] += a * (c[2] - p[2]);
+                    if span.len() > 0 {
+                        let row = &scratch.delta[r * stride..r * stride + width];
+                        raster::push_groups(row, span, &mut stored.area);
                     }
-                };
-                let delta = &mut scratch.delta[r * stride..(r + 1) * stride];
-                match store.as_deref_mut() {
-                    Some(stored) => raster::prefix_row(delta, span, width, |x, acc| {
-                        stored.area.push(acc);
-                        composite(x, acc);
-                    }),
-                    None => raster::prefix_row(delta, span, width, composite),
                 }
             }
+            if paints {
+                let (op, c) = (T::from_f32(path.opacity), path.color.map(T::from_f32));
+                for (r, &span) in spans.iter().enumerate() {
+                    let (lo, end) = (span.lo as usize, span.end as usize);
+                    let (at, to) = (r * width + lo, r * width + end);
+                    composite_run(
+                        &scratch.delta[r * stride + lo..r * stride + end],
+                        op,
+                        c,
+                        [&mut pr[at..to], &mut pg[at..to], &mut pb[at..to]],
+                    );
+                }
+            }
+            raster::clear_rows(&mut scratch.delta, spans, width);
         }
+        for (k, px) in pixels.chunks_exact_mut(3).enumerate() {
+            (px[0], px[1], px[2]) = (pr[k], pg[k], pb[k]);
+        }
+    }
+}
+
+/// "Over" of one path along a run of pixels (channel planes), alpha `min(1, |area|) · opacity`.
+#[inline(always)]
+fn composite_run<T: Real>(area: &[T], opacity: T, color: [T; 3], planes: [&mut [T]; 3]) {
+    let n = area.len();
+    let [r, g, b] = planes;
+    let (r, g, b) = (&mut r[..n], &mut g[..n], &mut b[..n]);
+    for x in 0..n {
+        // `min(1, |area|)` as a select, which vectorises (and equals `min` for every input).
+        let v = area[x].abs();
+        let a = if v < T::ONE { v } else { T::ONE } * opacity;
+        r[x] += a * (color[0] - r[x]);
+        g[x] += a * (color[1] - g[x]);
+        b[x] += a * (color[2] - b[x]);
     }
 }

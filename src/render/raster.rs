@@ -23,12 +23,37 @@ pub(crate) struct RowSpan {
     pub end: u32,
 }
 
+/// Pixels per group: the backward works on runs of this many pixels of a row at once (SIMD
+/// lanes), and signed areas are kept for whole groups (see [`RowSpan::groups`]).
+pub(crate) const GROUP: usize = 8;
+
 impl RowSpan {
     pub const EMPTY: RowSpan = RowSpan { lo: 0, end: 0 };
 
     #[inline]
     pub fn len(self) -> usize {
         (self.end - self.lo) as usize
+    }
+
+    /// The groups `g_lo..g_hi` holding the span (pixels `GROUP · g_lo .. GROUP · g_hi`); empty
+    /// for an empty span. Kept signed areas cover these whole groups, zero outside the span.
+    #[inline]
+    pub fn groups(self) -> (usize, usize) {
+        if self.lo >= self.end {
+            (0, 0)
+        } else {
+            (
+                self.lo as usize / GROUP,
+                (self.end as usize).div_ceil(GROUP),
+            )
+        }
+    }
+
+    /// Values kept for the span: whole groups.
+    #[inline]
+    pub fn padded_len(self) -> usize {
+        let (lo, hi) = self.groups();
+        (hi - lo) * GROUP
     }
 }
 
@@ -130,7 +155,8 @@ fn cell<T: Real>(x: T) -> i32 {
 /// Accumulates the signed-area deltas of one closed polyline into `delta` (rows
 /// `row0..row0 + rows` of a canvas `width` wide, row stride `width + 2`) and records, per row,
 /// the span of cells whose coverage may be non-zero. `delta` must be zero on entry over the
-/// touched rows; [`prefix_row`] restores that.
+/// touched rows; [`clear_rows`] restores that.
+#[inline(always)]
 pub(crate) fn accumulate<T: Real>(
     outline: Outline<T>,
     row0: i32,
@@ -187,30 +213,113 @@ pub(crate) fn accumulate<T: Real>(
     }
 }
 
-/// Calls `f(x, acc)` for every cell of `span` with the running signed area, and clears the row's
-/// deltas (including the one past the canvas edge) for the next path.
+/// Rows whose prefix sums [`prefix_rows`] runs side by side: independent running sums, so that
+/// each addition need not wait for the one before it.
+const PREFIX_ROWS: usize = 4;
+
+/// Turns each row's deltas (row stride `width + 2`) into running signed areas, in place: after
+/// it, cell `x` of row `r`'s span holds the signed area of that pixel. Each row is summed left
+/// to right from 0, as a sum over its own span alone would be; cells past a row's span may hold
+/// leftovers, which [`clear_rows`] (to call once the areas are used) clears with the rest.
 #[inline(always)]
-pub(crate) fn prefix_row<T: Real>(
-    delta_row: &mut [T],
-    span: RowSpan,
-    width: usize,
-    mut f: impl FnMut(usize, T),
-) {
-    let mut acc = T::ZERO;
+pub(crate) fn prefix_rows<T: Real>(delta: &mut [T], spans: &[RowSpan], width: usize) {
+    let stride = width + 2;
+    for (block, spans) in spans.chunks(PREFIX_ROWS).enumerate() {
+        let Some((lo, end)) = block_range(spans) else {
+            continue;
+        };
+        let first = block * PREFIX_ROWS;
+        let delta = &mut delta[first * stride..(first + spans.len()) * stride];
+        if let Some([d0, d1, d2, d3]) = four_rows(delta, stride, lo, end) {
+            // Cells left of a row's span hold no delta, so its sum starts there at exactly 0.
+            let n = d0.len();
+            let (d1, d2, d3) = (&mut d1[..n], &mut d2[..n], &mut d3[..n]);
+            let mut acc = [T::ZERO; PREFIX_ROWS];
+            for x in 0..n {
+                acc[0] += d0[x];
+                acc[1] += d1[x];
+                acc[2] += d2[x];
+                acc[3] += d3[x];
+                (d0[x], d1[x], d2[x], d3[x]) = (acc[0], acc[1], acc[2], acc[3]);
+            }
+        } else {
+            for (r, span) in spans.iter().enumerate() {
+                let row = &mut delta[r * stride + span.lo as usize..r * stride + span.end as usize];
+                let mut acc = T::ZERO;
+                for d in row {
+                    acc += *d;
+                    *d = acc;
+                }
+            }
+        }
+    }
+}
+
+/// Zeroes what [`prefix_rows`] left in `delta` (and the deltas past the canvas edge), ready for
+/// the next path.
+#[inline(always)]
+pub(crate) fn clear_rows<T: Real>(delta: &mut [T], spans: &[RowSpan], width: usize) {
+    let stride = width + 2;
+    for (block, spans) in spans.chunks(PREFIX_ROWS).enumerate() {
+        let Some((lo, end)) = block_range(spans) else {
+            continue;
+        };
+        let first = block * PREFIX_ROWS;
+        for r in first..first + spans.len() {
+            delta[r * stride + lo..r * stride + end].fill(T::ZERO);
+            delta[r * stride + width] = T::ZERO;
+        }
+    }
+}
+
+/// The cells `lo..end` the non-empty spans of a block of rows cover together.
+#[inline(always)]
+fn block_range(spans: &[RowSpan]) -> Option<(usize, usize)> {
+    let filled = spans.iter().filter(|s| s.len() > 0);
+    Some((
+        filled.clone().map(|s| s.lo as usize).min()?,
+        filled.map(|s| s.end as usize).max()?,
+    ))
+}
+
+/// Cells `lo..end` of each row of `rows` (row stride `stride`), if it holds exactly
+/// [`PREFIX_ROWS`] rows.
+#[inline(always)]
+fn four_rows<T>(
+    rows: &mut [T],
+    stride: usize,
+    lo: usize,
+    end: usize,
+) -> Option<[&mut [T]; PREFIX_ROWS]> {
+    if rows.len() != PREFIX_ROWS * stride {
+        return None;
+    }
+    let (r0, rest) = rows.split_at_mut(stride);
+    let (r1, rest) = rest.split_at_mut(stride);
+    let (r2, r3) = rest.split_at_mut(stride);
+    Some([
+        &mut r0[lo..end],
+        &mut r1[lo..end],
+        &mut r2[lo..end],
+        &mut r3[lo..end],
+    ])
+}
+
+/// Appends the values of `span` in `row` (a row of cells), kept for the span's whole groups:
+/// zeros where the groups overhang it ([`RowSpan::groups`]).
+#[inline(always)]
+pub(crate) fn push_groups<T: Real>(row: &[T], span: RowSpan, out: &mut Vec<T>) {
+    let (g_lo, g_hi) = span.groups();
     let (lo, end) = (span.lo as usize, span.end as usize);
-    for (i, d) in delta_row[lo..end].iter_mut().enumerate() {
-        acc += *d;
-        *d = T::ZERO;
-        f(lo + i, acc);
-    }
-    if end == width {
-        delta_row[width] = T::ZERO;
-    }
+    out.extend(std::iter::repeat_n(T::ZERO, lo - g_lo * GROUP));
+    out.extend_from_slice(&row[lo..end]);
+    out.extend(std::iter::repeat_n(T::ZERO, g_hi * GROUP - end));
 }
 
 /// The adjoint of [`accumulate`] followed by the prefix sum: given `g(cx, cy)` = dL/d(signed
 /// area of cell), adds dL/d(vertex) of the closed polyline into `grad` (one entry per vertex).
 /// `g` must return 0 outside the canvas.
+#[inline(always)]
 pub(crate) fn backward_lines(
     outline: Outline<f32>,
     row0: i32,
