@@ -297,30 +297,14 @@ fn shading_cover(rgb: &[[u8; 3]], non_flat: &[bool], w: usize, h: usize) -> f32 
 mod tests {
     use super::*;
     use crate::imageio::to_rgb_image as to_image;
-    use crate::synth::lit_sphere;
+    use crate::synth::{antialiased, lit_sphere};
 
-    /// A `size²` image from a colour function of points in [−1, 1]², each pixel the mean of
-    /// 4 × 4 samples (anti-aliased, as a renderer or a rasteriser would draw it), 8-bit.
+    /// A `size²` anti-aliased 8-bit image of a colour function of points in [−1, 1]².
     fn image(size: usize, colour: impl Fn(f32, f32) -> [f32; 3]) -> Image {
-        let mut data = Vec::with_capacity(3 * size * size);
-        for y in 0..size {
-            for x in 0..size {
-                let mut sum = [0.0f32; 3];
-                for k in 0..16 {
-                    let (sx, sy) = ((k % 4) as f32 + 0.5, (k / 4) as f32 + 0.5);
-                    let u = (x as f32 + sx / 4.0) / size as f32 * 2.0 - 1.0;
-                    let v = (y as f32 + sy / 4.0) / size as f32 * 2.0 - 1.0;
-                    let c = colour(u, v);
-                    (0..3).for_each(|i| sum[i] += c[i] / 16.0);
-                }
-                data.extend(sum.map(|c| (c * 255.0).round() / 255.0));
-            }
-        }
-        Image {
-            width: size,
-            height: size,
-            data,
-        }
+        to_image(&image::DynamicImage::ImageRgb8(antialiased(
+            size as u32,
+            colour,
+        )))
     }
 
     #[test]

@@ -205,6 +205,12 @@ pub fn lit_sphere(size: u32, albedo: [f32; 3], backdrop: [f32; 3]) -> image::Rgb
         let (lit, shine) = (dot(normal, light), dot(normal, half).powi(40));
         albedo.map(|a| (a * (0.12 + 0.88 * lit) + 0.4 * shine).min(1.0))
     };
+    antialiased(size, colour)
+}
+
+/// A `size²` 8-bit image of `colour` (a function of points in [−1, 1]², values in [0, 1]),
+/// each pixel the mean of 4 × 4 samples: anti-aliased, as a renderer or a rasteriser draws it.
+pub fn antialiased(size: u32, colour: impl Fn(f32, f32) -> [f32; 3]) -> image::RgbImage {
     image::RgbImage::from_fn(size, size, |x, y| {
         let mut sum = [0.0f32; 3];
         for k in 0..16 {
