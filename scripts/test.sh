@@ -9,8 +9,10 @@ if ! cargo nextest --version >/dev/null 2>&1; then
     cargo install cargo-nextest --locked
 fi
 
-# The library's shape (README, "Code map"): layered imports, and a build without the command
-# line's and the service's dependencies.
+scripts/setup-build.sh
+
+# The code's shape (docs/design.md, "Code map"): layered imports, and a build without the
+# command line's and the service's dependencies.
 python3 scripts/check-modules.py
 cargo check --quiet --lib --no-default-features
 # The Dockerfile and deploy/ files, which nothing here builds or applies: linted and validated.
