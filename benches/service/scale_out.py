@@ -4,8 +4,8 @@
 under the image folders as a 64-path job, waits for all to succeed and prints jobs per minute.
 
     python3 benches/service/scale_out.py BIN --database-url postgres://… --workers 2 DIR…
-    farm-bench -n 3 --timeout 2400 --vs 'python3 benches/service/scale_out.py BIN --database-url URL --workers 1 DIR…' \\
-        -- python3 benches/service/scale_out.py BIN --database-url URL --workers 2 DIR…
+    hyperfine -w 0 -r 3 'python3 benches/service/scale_out.py BIN --database-url URL --workers 1 DIR…' \\
+        'python3 benches/service/scale_out.py BIN --database-url URL --workers 2 DIR…'
 """
 
 import argparse
