@@ -29,6 +29,7 @@ mod results;
 mod runner;
 mod store;
 mod submit;
+mod telemetry;
 mod webhooks;
 mod worker;
 
@@ -61,9 +62,9 @@ use tower_http::request_id::{
 use tower_http::trace::TraceLayer;
 
 use error::ApiError;
-use ops::Metrics;
 use queue::{Queue, QueueError};
 use store::{Store, StoreError};
+use telemetry::Metrics;
 
 /// Everything `covec serve` can be told.
 #[derive(Clone, Debug)]
@@ -355,7 +356,7 @@ pub async fn serve(
             .min(config.queue.idempotency_window),
         config.queue.orphan_age,
     ));
-    let metrics_upkeep = tokio::spawn(ops::upkeep(state.metrics.clone()));
+    let metrics_upkeep = tokio::spawn(telemetry::upkeep(state.metrics.clone()));
     let shutdown = state.shutdown.clone();
     let signal = tokio::spawn(async move {
         stop_signal().await;
@@ -404,7 +405,7 @@ pub async fn work(
     // Job durations are recorded here (for `/metrics` on the ops port, if any), so the samples
     // need upkeep.
     let metrics = Arc::new(Metrics::default());
-    let metrics_upkeep = tokio::spawn(ops::upkeep(metrics.clone()));
+    let metrics_upkeep = tokio::spawn(telemetry::upkeep(metrics.clone()));
     let runner = Arc::new(runner::Runner {
         decode_slots: Arc::new(tokio::sync::Semaphore::new(
             config.limits.decode_slots.max(1),

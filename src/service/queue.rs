@@ -32,12 +32,12 @@ use tracing::{info, info_span, warn};
 use super::error::ApiError;
 use super::fair::{FairQueue, Scheduling};
 use super::model::{CancelReason, JobRecord, Placement, Status, Webhook, now_ms};
-use super::ops::Metrics;
 use super::runner::{JobEntry, Runner, Settled, job_pool, lock};
 use super::store::{
     Canceled, Change, Inserted, Postgres, Store, StoreError, digest, retry_transient,
 };
 use super::submit::InputLimits;
+use super::telemetry::Metrics;
 use super::worker::{DEFAULT_LEASE, REAP_EVERY, WorkerConfig, WorkerError, Workers, reap_expired};
 
 /// How often an API replica on the shared backend brings other processes' changes into its

@@ -15,9 +15,9 @@ use tracing::{info, warn};
 
 use super::error::ApiError;
 use super::model::{CancelReason, JobRecord, ProgressView, Status};
-use super::ops::Metrics;
 use super::store::{Store, StoreError, digest, retry_transient};
 use super::submit::{InputLimits, decode_inputs, input_error};
+use super::telemetry::Metrics;
 use crate::pipeline::{self, Observer, Progress};
 use crate::render::Image;
 
