@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
-# Quality and speed bench of issue 12 (detail, perceptual error, coarse-to-fine).
-#   benches/quality/bench.sh AFTER BEFORE OUT     (AFTER/BEFORE: covec binaries)
+# Quality and speed bench: two covec binaries, and VTracer, on the same images.
+#   COVEC_BENCH=DIR benches/quality/bench.sh AFTER BEFORE OUT     (AFTER/BEFORE: covec binaries;
+#   DIR: the covec-bench set, which is not part of this repository)
 # Sets: the 16 covec-bench photos (256²) and a 512² set (scikit-image's astronaut.png, public
 # domain NASA photo, from the scikit-image 0.26.0 wheel on PyPI; four bench photos upscaled
 # 2× with Pillow's Lanczos). Each SVG (covec at 64 paths; VTracer -f 16 on the 512² set) is
 # rendered by resvg over white and compared with its input: MSE and GMSD (metrics.py).
 # Needs resvg, vtracer, hyperfine, python3 (a venv with pillow + numpy is made in OUT).
 set -eu
-after=$1; before=$2; out=$3; here=$(cd "$(dirname "$0")" && pwd); bench=${COVEC_BENCH:-$here/../../../shared/covec-bench}
+after=$1; before=$2; out=$3; here=$(cd "$(dirname "$0")" && pwd); bench=${COVEC_BENCH:?set COVEC_BENCH to the covec-bench directory}
 mkdir -p "$out/set512"; py=$out/venv/bin/python
 [ -x "$py" ] || { python3 -m venv "$out/venv" && "$out/venv/bin/pip" -q install pillow numpy; }
 "$py" "$here/metrics.py" --check "$here/../../tests/fixtures"
