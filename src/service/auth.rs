@@ -6,11 +6,10 @@ use axum::extract::{Request, State};
 use axum::http::header;
 use axum::middleware::Next;
 use axum::response::Response;
-use sha2::{Digest, Sha256};
 
 use super::AppState;
 use super::error::ApiError;
-use super::submit::hex;
+use super::model::key_id;
 
 /// Who is asking: a hash of their API key, or `None` when the server has no keys.
 /// Only the hash is stored with jobs and logged.
@@ -40,11 +39,6 @@ fn client_label(value: &[u8]) -> Result<&str, ApiError> {
             "X-Client-Key must be 1-255 visible ASCII characters".into(),
         )),
     }
-}
-
-/// The identity stored for a key.
-pub fn key_id(key: &str) -> String {
-    hex(&Sha256::digest(key.as_bytes())[..12])
 }
 
 pub async fn require_key(

@@ -7,8 +7,7 @@ use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use sha2::{Digest, Sha256};
 
-use super::model::{JobRecord, now_ms};
-use super::submit::hex;
+use super::model::{JobRecord, hex, now_ms};
 
 /// A result about to be served.
 pub struct Download {

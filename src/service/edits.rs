@@ -19,14 +19,15 @@ use utoipa::openapi::schema::{
 use utoipa::openapi::{ObjectBuilder, OneOfBuilder, Ref, RefOr, Schema, Type};
 
 use super::auth::Owner;
-use super::error::{ApiError, Problem, ResultProblems, Unavailable};
+use super::error::{ApiError, ResultProblems, Unavailable};
+use super::inputs::{InputError, InputKind};
 use super::jobs::find;
-use super::model::{JobId, JobRecord};
+use super::model::{JobId, JobRecord, Problem};
 use super::results::{
     Binary, SceneFiles, SceneJson, Stored, artefact, require_success, stored_scene,
 };
 use super::store::digest;
-use super::submit::{UploadQuery, input_error, read_body};
+use super::submit::{UploadQuery, read_body};
 use super::{AppState, Endpoint, endpoint};
 use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
 use crate::imageio::{self, resize_rgb};
@@ -363,8 +364,8 @@ async fn create(
                 // The job's input passed the submission's checks (a cut JPEG only if the
                 // client accepted it).
                 let original = imageio::decode_image(
-                    &read("input/image")?
-                        .ok_or_else(|| ApiError::ResultNotFound("input/image".into()))?,
+                    &read(&InputKind::Image.name())?
+                        .ok_or_else(|| ApiError::ResultNotFound(InputKind::Image.name()))?,
                     &imageio::Limits {
                         accept_truncated: true,
                         ..limits.clone()
@@ -372,7 +373,7 @@ async fn create(
                 )
                 .map_err(|e| ApiError::Internal(format!("stored input: {e}")))?;
                 let reference = imageio::decode_image(&image, &limits)
-                    .map_err(input_error("reference image"))?;
+                    .map_err(InputError::refused("reference image"))?;
                 imageio::check_aspect(
                     "the reference image",
                     (reference.width(), reference.height()),

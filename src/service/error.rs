@@ -5,42 +5,21 @@
 
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use serde::{Deserialize, Serialize};
 
+use super::inputs::InputError;
+use super::model::Problem;
+use super::queue::Refusal;
 use super::rate::RateRefusal;
+use super::runner::JobFailure;
+use super::store::StoreError;
+use super::webhooks::WebhookRefusal;
+use crate::imageio;
 
 /// A response in the API document.
 type DocResponse = utoipa::openapi::RefOr<utoipa::openapi::Response>;
 
 /// Media type of every error body.
 pub const PROBLEM_JSON: &str = "application/problem+json";
-
-/// A problem details object (RFC 9457) with covec's extensions.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-pub struct Problem {
-    /// `urn:covec:problem:<code>`.
-    #[serde(rename = "type")]
-    pub kind: String,
-    pub title: String,
-    pub status: u16,
-    /// For people, not for branching on. At most 512 characters (then cut, ending in `…`); a
-    /// value the client sent appears cut to 64 the same way; server paths never appear.
-    pub detail: String,
-    /// Stable machine-readable code.
-    pub code: String,
-    /// The configured limit that was exceeded, when one was.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    #[schema(value_type = u64)]
-    pub limit: Option<u64>,
-    /// The measured value that exceeded `limit`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    #[schema(value_type = u64)]
-    pub actual: Option<u64>,
-    /// Seconds to wait before retrying (also sent as `Retry-After`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    #[schema(value_type = u64)]
-    pub retry_after: Option<u64>,
-}
 
 /// The response of every error status in the API document.
 impl<'r> utoipa::ToResponse<'r> for Problem {
@@ -371,6 +350,109 @@ fn clip(text: &str, max: usize) -> String {
     match text.char_indices().nth(max) {
         Some((end, _)) => format!("{}…", &text[..end]),
         None => text.to_owned(),
+    }
+}
+
+/// A failure of the moment (the database or the store out of reach, a full disk) is 503
+/// `storage-unavailable` with `Retry-After`: the same request may well succeed shortly.
+impl From<StoreError> for ApiError {
+    fn from(error: StoreError) -> Self {
+        tracing::error!(%error, "storage error");
+        if error.is_transient() {
+            ApiError::StorageUnavailable(error.public_detail())
+        } else {
+            ApiError::Internal(error.public_detail())
+        }
+    }
+}
+
+/// Limits are 413, the rest 422.
+impl From<InputError> for ApiError {
+    fn from(error: InputError) -> Self {
+        let (what, source) = match error {
+            InputError::Refused { what, source } => (what, source),
+            InputError::TooLarge { limit, actual } => {
+                return ApiError::InputsTooLarge { limit, actual };
+            }
+            InputError::MasksAndLabels => return ApiError::InvalidInput(error.to_string()),
+        };
+        match source {
+            imageio::InputError::Undecodable(detail) => ApiError::UndecodableImage(what, detail),
+            imageio::InputError::TooManyPixels { pixels, max, .. } => ApiError::TooManyPixels {
+                limit: max,
+                actual: pixels,
+            },
+            imageio::InputError::TooManyMasks { count, max } => ApiError::TooManyMasks {
+                limit: max as u64,
+                actual: count as u64,
+            },
+            imageio::InputError::TooManyLabels { max } => {
+                ApiError::TooManyLabels { limit: max as u64 }
+            }
+            imageio::InputError::Truncated => ApiError::TruncatedImage(what),
+            aspect @ imageio::InputError::AspectRatio { .. } => {
+                ApiError::InvalidInput(aspect.to_string())
+            }
+            other @ (imageio::InputError::Empty { .. }
+            | imageio::InputError::NonBinaryMask { .. }) => {
+                ApiError::InvalidInput(format!("{what}: {other}"))
+            }
+        }
+    }
+}
+
+/// The problem a failed job's record keeps.
+impl From<JobFailure> for Problem {
+    fn from(failure: JobFailure) -> Self {
+        ApiError::from(failure).problem()
+    }
+}
+
+impl From<JobFailure> for ApiError {
+    fn from(failure: JobFailure) -> Self {
+        match failure {
+            JobFailure::Input(error) => error.into(),
+            JobFailure::Storage(error) => error.into(),
+            JobFailure::MissingInputs => ApiError::Internal(failure.to_string()),
+            JobFailure::TimeLimit(seconds) => ApiError::TimeLimit(seconds),
+            JobFailure::InvalidParams(message) => ApiError::InvalidParams(message),
+            JobFailure::Internal(message) => ApiError::Internal(message),
+            JobFailure::Crashed(message) => ApiError::PipelineCrashed(message),
+            JobFailure::WorkersLost(attempts) => ApiError::WorkersLost(attempts),
+        }
+    }
+}
+
+impl From<WebhookRefusal> for ApiError {
+    fn from(refusal: WebhookRefusal) -> Self {
+        match refusal {
+            WebhookRefusal::Invalid(detail) => ApiError::InvalidParams(detail),
+            WebhookRefusal::HostNotAllowed(host) => ApiError::WebhookHostNotAllowed(host),
+        }
+    }
+}
+
+impl From<Refusal> for ApiError {
+    fn from(refusal: Refusal) -> Self {
+        match refusal {
+            Refusal::ShuttingDown => ApiError::ShuttingDown,
+            Refusal::QueueFull {
+                queued,
+                retry_after,
+            } => ApiError::QueueFull(queued, retry_after),
+            Refusal::KeyQueueFull {
+                limit,
+                actual,
+                retry_after,
+            } => ApiError::KeyQueueFull {
+                limit,
+                actual,
+                retry_after,
+            },
+            Refusal::IdempotencyMismatch => ApiError::IdempotencyMismatch,
+            Refusal::CorruptResult(name) => ApiError::CorruptResult(name),
+            Refusal::Storage(error) => error.into(),
+        }
     }
 }
 

@@ -46,7 +46,7 @@ pub struct Scheduling {
     pub batch_age: Duration,
     /// Every key's limits, unless overridden.
     pub limits: KeyLimits,
-    /// Limits of particular keys, by client id ([`super::auth::key_id`] of the key).
+    /// Limits of particular keys, by client id ([`super::model::key_id`] of the key).
     pub overrides: HashMap<String, KeyLimits>,
 }
 
@@ -74,7 +74,7 @@ impl Scheduling {
         }
         let limits = self
             .overrides
-            .entry(super::auth::key_id(key.trim()))
+            .entry(super::model::key_id(key.trim()))
             .or_insert(self.limits);
         match name.trim() {
             "queued" => limits.queued = (value > 0).then_some(value as usize),
@@ -480,7 +480,7 @@ mod tests {
     fn a_key_at_its_running_limit_waits_and_others_go_on() {
         let mut policy = Scheduling::default();
         policy.override_limit("k:running=1").unwrap();
-        let client = crate::service::auth::key_id("k");
+        let client = crate::service::model::key_id("k");
         let now = 5_000;
         let mut running = job(&client, Priority::Interactive, now);
         let waiting = job(&client, Priority::Interactive, now);
@@ -506,7 +506,7 @@ mod tests {
         let mut policy = Scheduling::default();
         policy.limits.queued = Some(10);
         policy.override_limit("key:with:colons:rate=30").unwrap();
-        let limits = policy.limits_of(&crate::service::auth::key_id("key:with:colons"));
+        let limits = policy.limits_of(&crate::service::model::key_id("key:with:colons"));
         assert_eq!(limits.queued, Some(10));
         assert_eq!(limits.per_minute, NonZeroU32::new(30));
         for bad in ["nokey", ":queued=1", "k:speed=3", "k:queued=-1", "k:queued"] {

@@ -4,7 +4,9 @@
 use axum::extract::Request;
 use axum::http::StatusCode;
 
-use super::submit::{self, InputLimits};
+use super::error::ApiError;
+use super::inputs::InputLimits;
+use super::submit;
 
 /// `POST /v1/jobs` up to the job record: reads the body (multipart or JSON with base64), checks
 /// the parameters and decodes the inputs, as [`super::jobs`] does. `Err` is the status the
@@ -17,14 +19,9 @@ pub async fn submission(
     let submission = submit::read(request, limits)
         .await
         .map_err(|error| error.status())?;
-    submit::decode_inputs(
-        &submission.image,
-        submission.albedo.as_deref(),
-        &submission.masks,
-        submission.labels.as_deref(),
-        limits,
-        accept_truncated,
-    )
-    .map_err(|error| error.status())?;
+    submission
+        .inputs
+        .decode(limits, accept_truncated)
+        .map_err(|error| ApiError::from(error).status())?;
     Ok(())
 }

@@ -13,15 +13,15 @@ use axum::{Extension, Json};
 use serde::Deserialize;
 
 use super::auth::{Client, Owner};
-use super::error::{ApiError, JobProblems, Problem, TooManyRequests, Unavailable};
+use super::error::{ApiError, JobProblems, TooManyRequests, Unavailable};
 use super::model::{
-    Idempotency, IdempotentReplayed, InputManifest, JobEvent, JobId, JobList, JobRecord, JobView,
-    Status, is_job_id, new_job_id,
+    Idempotency, IdempotentReplayed, JobEvent, JobId, JobList, JobRecord, JobView, Problem, Status,
+    is_job_id, new_job_id,
 };
 use super::queue::Admission;
 use super::rate::RateState;
 use super::runner::JobEntry;
-use super::submit::{self, JsonSubmission, MultipartSubmission, UploadQuery, decode_inputs};
+use super::submit::{self, JsonSubmission, MultipartSubmission, UploadQuery};
 use super::{AppState, Endpoint, endpoint};
 
 pub fn endpoints() -> Vec<Endpoint> {
@@ -171,45 +171,17 @@ async fn create(
     let limits = state.limits.clone();
     let submission = tokio::task::spawn_blocking(move || {
         let _slot = slot;
-        decode_inputs(
-            &submission.image,
-            submission.albedo.as_deref(),
-            &submission.masks,
-            submission.labels.as_deref(),
-            &limits,
-            options.accept_truncated,
-        )
-        .map(|_| submission)
+        submission
+            .inputs
+            .decode(&limits, options.accept_truncated)
+            .map(|_| submission)
     })
     .await
     .map_err(|error| ApiError::Internal(error.to_string()))??;
 
     let id = new_job_id();
     tracing::Span::current().record("job_id", id.as_str());
-    let mut inputs = vec![("input/image".to_owned(), submission.image)];
-    let manifest = InputManifest {
-        albedo: submission.albedo.is_some(),
-        masks: submission.masks.len(),
-        labels: submission.labels.is_some(),
-        accept_truncated: options.accept_truncated,
-    };
-    inputs.extend(
-        submission
-            .albedo
-            .map(|bytes| ("input/albedo".to_owned(), bytes)),
-    );
-    inputs.extend(
-        submission
-            .labels
-            .map(|bytes| ("input/labels".to_owned(), bytes)),
-    );
-    inputs.extend(
-        submission
-            .masks
-            .into_iter()
-            .enumerate()
-            .map(|(i, bytes)| (format!("input/mask-{i}"), bytes)),
-    );
+    let manifest = submission.inputs.manifest(options.accept_truncated);
     let record = JobRecord {
         owner: owner.0.clone(),
         idempotency: key.map(|key| Idempotency { key, fingerprint }),
@@ -224,7 +196,7 @@ async fn create(
         )
     };
     let queue = state.queue.clone();
-    let admission = tokio::task::spawn_blocking(move || queue.admit(record, inputs))
+    let admission = tokio::task::spawn_blocking(move || queue.admit(record, submission.inputs))
         .await
         .map_err(|error| ApiError::Internal(error.to_string()))??;
     let (entry, replayed) = match admission {

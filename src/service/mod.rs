@@ -18,6 +18,7 @@ mod error;
 mod fair;
 #[doc(hidden)]
 pub mod fuzzing;
+mod inputs;
 mod jobs;
 mod limits;
 mod model;
@@ -35,10 +36,10 @@ mod worker;
 
 pub use conn::ConnectionLimits;
 pub use fair::{KeyLimits, Scheduling};
+pub use inputs::InputLimits;
 pub use openapi::document as openapi_document;
 pub use ops::LIVENESS_PATH;
 pub use queue::QueueConfig;
-pub use submit::InputLimits;
 pub use webhooks::{WebhookConfig, WebhookConfigError};
 
 use std::collections::HashSet;
@@ -197,7 +198,7 @@ impl AppState {
                 config
                     .api_keys
                     .iter()
-                    .map(|key| auth::key_id(key))
+                    .map(|key| model::key_id(key))
                     .collect(),
             ),
             cors_origins: Arc::new(config.cors_origins.clone()),

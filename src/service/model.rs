@@ -7,8 +7,34 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use utoipa::openapi::{ObjectBuilder, Ref, RefOr, Schema, Type};
 
-use super::error::Problem;
 use crate::pipeline::{Mode, Params, Progress};
+
+/// A problem details object (RFC 9457) with covec's extensions.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Problem {
+    /// `urn:covec:problem:<code>`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    pub title: String,
+    pub status: u16,
+    /// For people, not for branching on. At most 512 characters (then cut, ending in `…`); a
+    /// value the client sent appears cut to 64 the same way; server paths never appear.
+    pub detail: String,
+    /// Stable machine-readable code.
+    pub code: String,
+    /// The configured limit that was exceeded, when one was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = u64)]
+    pub limit: Option<u64>,
+    /// The measured value that exceeded `limit`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = u64)]
+    pub actual: Option<u64>,
+    /// Seconds to wait before retrying (also sent as `Retry-After`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = u64)]
+    pub retry_after: Option<u64>,
+}
 
 /// The job id's schema in the API document: what [`is_job_id`] accepts.
 pub struct JobId;
@@ -24,6 +50,17 @@ impl utoipa::PartialSchema for JobId {
 }
 
 impl ToSchema for JobId {}
+
+/// Bytes in lowercase hex: digests, fingerprints and key ids.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|byte| format!("{byte:02x}")).collect()
+}
+
+/// The identity stored for an API key (the key itself never is).
+pub fn key_id(key: &str) -> String {
+    use sha2::Digest;
+    hex(&sha2::Sha256::digest(key.as_bytes())[..12])
+}
 
 /// Job id: `job_` + a UUIDv7 in hex, so ids sort by creation time.
 pub fn new_job_id() -> String {

@@ -19,8 +19,8 @@ use utoipa::openapi::{
 };
 use utoipa::{Modify, OpenApi};
 
-use super::error::{Problem, TooManyRequests, Unavailable};
-use super::model::{IdempotentReplayed, WebhookEvent, WebhookMessage};
+use super::error::{TooManyRequests, Unavailable};
+use super::model::{IdempotentReplayed, Problem, WebhookEvent, WebhookMessage};
 use super::{edits, jobs, limits, ops, results};
 use crate::edit::ReferenceParams;
 

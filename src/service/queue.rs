@@ -26,17 +26,15 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime};
 
-use axum::body::Bytes;
 use tracing::{info, info_span, warn};
 
-use super::error::ApiError;
 use super::fair::{FairQueue, Scheduling};
+use super::inputs::{EncodedInputs, InputLimits};
 use super::model::{CancelReason, JobRecord, Placement, Status, Webhook, now_ms};
 use super::runner::{JobEntry, Runner, Settled, job_pool, lock};
 use super::store::{
     Canceled, Change, Inserted, Postgres, Store, StoreError, digest, retry_transient,
 };
-use super::submit::InputLimits;
 use super::telemetry::Metrics;
 use super::worker::{DEFAULT_LEASE, REAP_EVERY, WorkerConfig, WorkerError, Workers, reap_expired};
 
@@ -221,6 +219,30 @@ pub enum Admission {
     Created(Arc<JobEntry>),
     /// An earlier job with the same Idempotency-Key and the same request.
     Replayed(Arc<JobEntry>),
+}
+
+/// Why the queue did not do what a request asked; the handlers answer with its problem.
+#[derive(Debug, thiserror::Error)]
+pub enum Refusal {
+    #[error("the server is shutting down")]
+    ShuttingDown,
+    /// Every queue slot is taken; `retry_after` in seconds.
+    #[error("the job queue is full ({queued} jobs)")]
+    QueueFull { queued: usize, retry_after: u64 },
+    /// The client's queued jobs are at its limit; `retry_after` in seconds.
+    #[error("this key has {actual} jobs queued, its limit is {limit}")]
+    KeyQueueFull {
+        limit: u64,
+        actual: u64,
+        retry_after: u64,
+    },
+    #[error("this Idempotency-Key was used with a different request")]
+    IdempotencyMismatch,
+    /// The named stored file does not match its recorded digest.
+    #[error("the stored result `{0}` is damaged")]
+    CorruptResult(String),
+    #[error(transparent)]
+    Storage(#[from] StoreError),
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -584,7 +606,7 @@ impl Queue {
         owner: &Option<String>,
         key: &str,
         fingerprint: &str,
-    ) -> Result<Option<Arc<JobEntry>>, ApiError> {
+    ) -> Result<Option<Arc<JobEntry>>, Refusal> {
         let Some(earlier) = self.store().idempotent(owner, key, self.keys_since())? else {
             return Ok(None);
         };
@@ -593,7 +615,7 @@ impl Queue {
             .as_ref()
             .is_some_and(|i| i.fingerprint == fingerprint);
         if !same {
-            return Err(ApiError::IdempotencyMismatch);
+            return Err(Refusal::IdempotencyMismatch);
         }
         Ok(Some(lock(&self.state).remember(JobEntry::new(earlier))))
     }
@@ -606,14 +628,14 @@ impl Queue {
     /// Refuses new work of `client` when draining, when the queue is full, or when the
     /// client's queued jobs are at its limit. On the shared backend this looks at the copy;
     /// the insert checks again in the database.
-    pub fn check_capacity(&self, client: &str) -> Result<(), ApiError> {
+    pub fn check_capacity(&self, client: &str) -> Result<(), Refusal> {
         let state = lock(&self.state);
         self.capacity_error(&state, client).map_or(Ok(()), Err)
     }
 
-    fn capacity_error(&self, state: &State, client: &str) -> Option<ApiError> {
+    fn capacity_error(&self, state: &State, client: &str) -> Option<Refusal> {
         if state.draining {
-            return Some(ApiError::ShuttingDown);
+            return Some(Refusal::ShuttingDown);
         }
         let queued = match self.is_shared() {
             true => lock(&self.shared_depth).0,
@@ -630,7 +652,7 @@ impl Queue {
     /// 429 `key-queue-full`, retry after about the time one of the key's jobs takes to start:
     /// a mean run time for each key waiting (the rule serves them in turn), shared by the
     /// workers running now.
-    fn key_queue_full(&self, state: &State, limit: usize, queued: usize) -> ApiError {
+    fn key_queue_full(&self, state: &State, limit: usize, queued: usize) -> Refusal {
         let mean = state
             .fair
             .mean_run_ms()
@@ -641,7 +663,7 @@ impl Queue {
         let seconds = (state.fair.keys_waiting() as f64 * mean / workers as f64)
             .ceil()
             .max(1.0);
-        ApiError::KeyQueueFull {
+        Refusal::KeyQueueFull {
             limit: limit as u64,
             actual: queued as u64,
             retry_after: seconds as u64,
@@ -650,36 +672,35 @@ impl Queue {
 
     /// 503 `queue-full`, with the time for the queue ahead to clear from the mean job
     /// duration so far.
-    fn queue_full(&self, queued: usize) -> ApiError {
+    fn queue_full(&self, queued: usize) -> Refusal {
         let mean = self.metrics.mean_job_seconds().unwrap_or(10.0);
         let seconds = (queued as f64 * mean / self.config.workers.max(1) as f64)
             .ceil()
             .max(1.0);
-        ApiError::QueueFull(queued, seconds as u64)
+        Refusal::QueueFull {
+            queued,
+            retry_after: seconds as u64,
+        }
     }
 
     /// Stores inputs and record, then queues the job (or replays an idempotent duplicate).
-    pub fn admit(
-        &self,
-        record: JobRecord,
-        inputs: Vec<(String, Bytes)>,
-    ) -> Result<Admission, ApiError> {
+    pub fn admit(&self, record: JobRecord, inputs: EncodedInputs) -> Result<Admission, Refusal> {
         let id = record.id.clone();
-        for (name, bytes) in &inputs {
-            if let Err(error) = self.store().write_artefact(&id, name, bytes) {
+        for (kind, bytes) in inputs.into_files() {
+            if let Err(error) = self.store().write_artefact(&id, &kind.name(), &bytes) {
                 let _ = self.store().remove_artefacts(&id);
                 return Err(error.into());
             }
         }
         let mut state = lock(&self.state);
-        let refuse = |state: MutexGuard<'_, State>, error: ApiError| {
+        let refuse = |state: MutexGuard<'_, State>, error: Refusal| {
             drop(state);
             let _ = self.store().remove_artefacts(&id);
             Err(error)
         };
         if let Some(postgres) = self.shared() {
             if state.draining {
-                return refuse(state, ApiError::ShuttingDown);
+                return refuse(state, Refusal::ShuttingDown);
             }
             drop(state);
             let admitted = self.admit_shared(postgres, record);
@@ -703,7 +724,7 @@ impl Queue {
                 let result = if earlier.idempotency.as_ref() == Some(idempotency) {
                     Ok(Admission::Replayed(state.remember(JobEntry::new(earlier))))
                 } else {
-                    Err(ApiError::IdempotencyMismatch)
+                    Err(Refusal::IdempotencyMismatch)
                 };
                 drop(state);
                 let _ = self.store().remove_artefacts(&id);
@@ -714,7 +735,7 @@ impl Queue {
             return refuse(state, error);
         }
         if let Err(error) = self.store().save(&record) {
-            return refuse(state, ApiError::from(error));
+            return refuse(state, Refusal::from(error));
         }
         let entry = state.remember(JobEntry::new(record));
         drop(state);
@@ -724,7 +745,7 @@ impl Queue {
 
     /// Queues a job in the database (the unique index decides between replicas which of two
     /// submissions with one Idempotency-Key is first).
-    fn admit_shared(&self, postgres: &Postgres, record: JobRecord) -> Result<Admission, ApiError> {
+    fn admit_shared(&self, postgres: &Postgres, record: JobRecord) -> Result<Admission, Refusal> {
         let key_limit = self.config.scheduling.limits_of(&record.client).queued;
         match postgres.insert(
             &record,
@@ -740,7 +761,7 @@ impl Queue {
                 let entry = lock(&self.state).remember(JobEntry::new(*earlier));
                 Ok(Admission::Replayed(entry))
             }
-            Inserted::Existing(_) => Err(ApiError::IdempotencyMismatch),
+            Inserted::Existing(_) => Err(Refusal::IdempotencyMismatch),
             Inserted::Full(queued) => Err(self.queue_full(queued)),
             Inserted::KeyFull(queued) => {
                 let limit = key_limit.unwrap_or(queued);
@@ -751,7 +772,7 @@ impl Queue {
 
     /// Cancels a job: a queued one ends at once, a running one within one iteration.
     /// Returns whether the job was running (the cancel is then still in progress).
-    pub fn cancel(&self, entry: &Arc<JobEntry>) -> Result<bool, ApiError> {
+    pub fn cancel(&self, entry: &Arc<JobEntry>) -> Result<bool, Refusal> {
         if let Some(postgres) = self.shared() {
             return self.cancel_shared(postgres, entry);
         }
@@ -780,7 +801,7 @@ impl Queue {
 
     /// [`Queue::cancel`] in the database: a queued job (whatever the copy says) ends there;
     /// a running one's worker stops it at its next heartbeat.
-    fn cancel_shared(&self, postgres: &Postgres, entry: &Arc<JobEntry>) -> Result<bool, ApiError> {
+    fn cancel_shared(&self, postgres: &Postgres, entry: &Arc<JobEntry>) -> Result<bool, Refusal> {
         let mut ended = entry.snapshot();
         ended.end(
             Status::Canceled,
@@ -812,7 +833,7 @@ impl Queue {
     /// write brings the job back. A running job is stopped and its runner removes the files
     /// when it stops (removing them here would race the files it is still writing); files
     /// that cannot be removed are left to the orphan sweep.
-    pub fn delete(&self, entry: &JobEntry) -> Result<(), ApiError> {
+    pub fn delete(&self, entry: &JobEntry) -> Result<(), Refusal> {
         self.store().tombstone(&entry.id)?;
         let mut state = lock(&self.state);
         // On the shared backend the job's worker, wherever it is, learns it at its next
@@ -859,7 +880,7 @@ impl Queue {
             let mut failed = false;
             for id in &due {
                 let _span = info_span!("expire", job_id = %id).entered();
-                let removal = self.find(id).map_err(ApiError::from).and_then(|entry| {
+                let removal = self.find(id).map_err(Refusal::from).and_then(|entry| {
                     let Some(entry) = entry else { return Ok(()) };
                     self.store().remove_artefacts(id)?;
                     entry
@@ -1021,15 +1042,15 @@ impl Queue {
     }
 
     /// Persists a job's record, retrying transient failures.
-    fn save(&self, entry: &JobEntry) -> Result<(), ApiError> {
+    fn save(&self, entry: &JobEntry) -> Result<(), Refusal> {
         retry_transient("saving the job", || self.store().save(&entry.snapshot()))
-            .map_err(ApiError::from)
+            .map_err(Refusal::from)
     }
 
     /// A stored file of a job, checked against the digest recorded when it was written: in the
     /// job's record for its results, in its folder's digests for an edit's files (a file cut
     /// short or altered on disk is an error, never served as if whole).
-    pub fn read_result(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>, ApiError> {
+    pub fn read_result(&self, id: &str, name: &str) -> Result<Option<Vec<u8>>, Refusal> {
         let recorded = self
             .find(id)?
             .and_then(|entry| entry.record.borrow().checksums.get(name).cloned());
@@ -1039,7 +1060,7 @@ impl Queue {
                 Ok(digest) => digest,
                 Err(error @ StoreError::CorruptRecord { .. }) => {
                     tracing::error!(job_id = %id, name, %error, "unreadable digests");
-                    return Err(ApiError::CorruptResult(name.to_owned()));
+                    return Err(Refusal::CorruptResult(name.to_owned()));
                 }
                 Err(error) => return Err(error.into()),
             },
@@ -1049,7 +1070,7 @@ impl Queue {
             && digest(bytes) != expected
         {
             tracing::error!(job_id = %id, name, "a stored result does not match its digest");
-            return Err(ApiError::CorruptResult(name.to_owned()));
+            return Err(Refusal::CorruptResult(name.to_owned()));
         }
         Ok(bytes)
     }

@@ -14,9 +14,9 @@ use utoipa::openapi::schema::{KnownFormat, SchemaFormat};
 use utoipa::openapi::{ObjectBuilder, RefOr, Schema, Type};
 
 use super::download::{Download, etag_of, filename};
-use super::error::{ApiError, JobProblems, Problem, ResultProblems};
+use super::error::{ApiError, JobProblems, ResultProblems};
 use super::jobs::find;
-use super::model::{JobId, JobRecord, Status};
+use super::model::{JobId, JobRecord, Problem, Status};
 use super::queue::Queue;
 use super::{AppState, Endpoint, endpoint};
 use crate::output::{self, FileKind, RasterError};

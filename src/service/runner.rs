@@ -9,14 +9,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use axum::body::Bytes;
 use tokio::sync::watch;
 use tracing::{info, warn};
 
-use super::error::ApiError;
-use super::model::{CancelReason, JobRecord, ProgressView, Status};
+use super::inputs::{EncodedInputs, InputError, InputLimits};
+use super::model::{CancelReason, JobRecord, Problem, ProgressView, Status};
 use super::store::{Store, StoreError, digest, retry_transient};
-use super::submit::{InputLimits, decode_inputs, input_error};
 use super::telemetry::Metrics;
 use crate::pipeline::{self, Observer, Progress};
 use crate::render::Image;
@@ -59,11 +57,11 @@ impl JobEntry {
     pub fn end(
         &self,
         status: Status,
-        error: Option<&ApiError>,
+        failure: Option<JobFailure>,
         reason: Option<CancelReason>,
         retention: Duration,
     ) {
-        let problem = error.map(ApiError::problem);
+        let problem = failure.map(Problem::from);
         self.record
             .send_modify(|record| record.end(status, problem, reason, retention));
     }
@@ -140,7 +138,7 @@ impl Runner {
             }
             Outcome::Failed(error) => entry.end(
                 Status::Failed,
-                Some(&error),
+                Some(error),
                 entry.cancel_reason(),
                 self.retention,
             ),
@@ -160,55 +158,18 @@ impl Runner {
 
     fn execute(&self, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) -> Outcome {
         let record = entry.snapshot();
-        let read = |name: &str| {
-            retry_transient("reading the job's inputs", || {
-                self.store.read_artefact(&entry.id, name)
-            })
-        };
-        let inputs = (|| {
-            let missing = || ApiError::Internal("the job's input files are missing".into());
-            let image = read("input/image")
-                .map_err(ApiError::from)?
-                .ok_or_else(missing)?;
-            let albedo = if record.inputs.albedo {
-                Some(
-                    read("input/albedo")
-                        .map_err(ApiError::from)?
-                        .ok_or_else(missing)?,
-                )
-            } else {
-                None
-            };
-            let labels = if record.inputs.labels {
-                Some(
-                    read("input/labels")
-                        .map_err(ApiError::from)?
-                        .ok_or_else(missing)?,
-                )
-            } else {
-                None
-            };
-            let masks = (0..record.inputs.masks)
-                .map(|index| {
-                    Ok(Bytes::from(
-                        read(&format!("input/mask-{index}"))
-                            .map_err(ApiError::from)?
-                            .ok_or_else(missing)?,
-                    ))
+        let inputs = (|| -> Result<_, JobFailure> {
+            let inputs = EncodedInputs::load(&record.inputs, |kind| {
+                retry_transient("reading the job's inputs", || {
+                    self.store.read_artefact(&entry.id, &kind.name())
                 })
-                .collect::<Result<Vec<_>, ApiError>>()?;
+            })?
+            .ok_or(JobFailure::MissingInputs)?;
             // A runner waits for its slot as long as it takes (the semaphore is never closed).
             let _slot = self
                 .runtime
                 .block_on(Arc::clone(&self.decode_slots).acquire_owned());
-            decode_inputs(
-                &image,
-                albedo.as_deref(),
-                &masks,
-                labels.as_deref(),
-                &self.limits,
-                record.inputs.accept_truncated,
-            )
+            Ok(inputs.decode(&self.limits, record.inputs.accept_truncated)?)
         })();
         let inputs = match inputs {
             Ok(inputs) => inputs,
@@ -232,22 +193,24 @@ impl Runner {
         match result {
             Ok(Ok(output)) => match self.write_results(entry, &output) {
                 Ok(()) => Outcome::Succeeded(output.mode.into(), output.mode_reason.clone()),
-                Err(error) => Outcome::Failed(ApiError::from(error)),
+                Err(error) => Outcome::Failed(JobFailure::Storage(error)),
             },
             Ok(Err(pipeline::Error::Canceled)) => match entry.cancel_reason() {
                 Some(CancelReason::Deadline) => {
-                    Outcome::Failed(ApiError::TimeLimit(self.job_time_limit.as_secs()))
+                    Outcome::Failed(JobFailure::TimeLimit(self.job_time_limit.as_secs()))
                 }
                 Some(CancelReason::Shutdown) => Outcome::Interrupted,
                 Some(CancelReason::User) | None => Outcome::Canceled,
             },
-            Ok(Err(pipeline::Error::Input(error))) => Outcome::Failed(input_error("inputs")(error)),
+            Ok(Err(pipeline::Error::Input(error))) => {
+                Outcome::Failed(InputError::refused("inputs")(error).into())
+            }
             Ok(Err(pipeline::Error::Params(message))) => {
-                Outcome::Failed(ApiError::InvalidParams(message))
+                Outcome::Failed(JobFailure::InvalidParams(message))
             }
             Ok(Err(pipeline::Error::Internal(message))) => {
                 warn!(job_id = %entry.id, "internal error in the pipeline: {message}");
-                Outcome::Failed(ApiError::Internal(message))
+                Outcome::Failed(JobFailure::Internal(message))
             }
             Err(panic) => {
                 let message = panic
@@ -255,7 +218,7 @@ impl Runner {
                     .map(|s| s.to_string())
                     .or_else(|| panic.downcast_ref::<String>().cloned())
                     .unwrap_or_else(|| "panic".into());
-                Outcome::Failed(ApiError::PipelineCrashed(message))
+                Outcome::Failed(JobFailure::Crashed(message))
             }
         }
     }
@@ -278,10 +241,35 @@ impl Runner {
     }
 }
 
+/// Why a job failed. Its record keeps what a client reads of it, the [`Problem`] the service's
+/// edge makes of it (`impl From<JobFailure> for Problem`).
+#[derive(Debug, thiserror::Error)]
+pub enum JobFailure {
+    #[error(transparent)]
+    Input(#[from] InputError),
+    #[error(transparent)]
+    Storage(#[from] StoreError),
+    #[error("the job's input files are missing")]
+    MissingInputs,
+    /// The wall-clock limit, in seconds, that stopped the run.
+    #[error("the job ran longer than the limit of {0} s")]
+    TimeLimit(u64),
+    #[error("invalid parameters: {0}")]
+    InvalidParams(String),
+    #[error("internal error: {0}")]
+    Internal(String),
+    /// The pipeline panicked, with this message.
+    #[error("the pipeline failed unexpectedly: {0}")]
+    Crashed(String),
+    /// Leases that expired before the job was given up.
+    #[error("the job's worker stopped without finishing it {0} times")]
+    WorkersLost(u32),
+}
+
 enum Outcome {
     /// The mode run and why.
     Succeeded(pipeline::Mode, String),
-    Failed(ApiError),
+    Failed(JobFailure),
     Canceled,
     /// Stopped by shutdown; runs again after restart.
     Interrupted,

@@ -8,7 +8,7 @@ use axum::extract::{FromRequest, Multipart, Request};
 use axum::http::header;
 use base64::Engine;
 use http_body_util::BodyExt;
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 use sha2::{Digest, Sha256};
 
 use utoipa::ToSchema;
@@ -16,81 +16,14 @@ use utoipa::openapi::schema::{AdditionalProperties, ArrayBuilder, KnownFormat, S
 use utoipa::openapi::{ObjectBuilder, Ref, RefOr, Schema, Type};
 
 use super::error::ApiError;
-use super::model::{Priority, WebhookEvent, input_name};
-use crate::imageio;
-use crate::pipeline::{Inputs, Masks, ParamLimits, Params};
-
-/// Limits on what one job may ask for.
-#[derive(Clone, Debug)]
-pub struct InputLimits {
-    /// Largest request body in bytes. Default 32 MiB.
-    pub max_body_bytes: u64,
-    /// Largest image (and albedo, mask, label map) in pixels, checked before decoding. Default 16 000 000.
-    pub max_pixels: u64,
-    /// Most masks per job. Default 256.
-    pub max_masks: usize,
-    /// Largest `params.paths`. Default 1024.
-    pub max_paths: u32,
-    /// Largest `params.max_size`. Default 1024.
-    pub max_size: u32,
-    /// Largest total iteration budget ([`crate::Iterations::total`]). Default 5000 (the defaults
-    /// add up to 760).
-    pub max_iterations: u64,
-    /// Largest total of a job's decoded inputs in bytes (image and albedo at 3 bytes a pixel,
-    /// masks at 1, a label map as decoded), counted as they decode. Default 256 MiB: 256 masks
-    /// of 4000² would otherwise hold 4 GB.
-    pub max_decoded_bytes: u64,
-    /// Requests that decode their inputs at once; others wait their turn, up to
-    /// `decode_wait`, then get 503 `decode-busy`. Default 2: with the decoded budget this
-    /// bounds the memory decoding can take.
-    pub decode_slots: usize,
-    /// Longest wait for a decode slot before a request is refused with 503 `decode-busy` (its
-    /// body stays in memory while it waits, so the wait is bounded too). Default 5 s.
-    pub decode_wait: std::time::Duration,
-}
-
-impl InputLimits {
-    /// The parameter ranges these limits allow.
-    pub fn params(&self) -> ParamLimits {
-        ParamLimits {
-            max_paths: self.max_paths,
-            max_size: self.max_size,
-            max_iterations: Some(self.max_iterations),
-        }
-    }
-
-    /// The decoder limits these limits imply; `accept_truncated` is the client's choice.
-    pub fn decoding(&self, accept_truncated: bool) -> imageio::Limits {
-        imageio::Limits {
-            max_pixels: self.max_pixels,
-            max_masks: self.max_masks,
-            accept_truncated,
-        }
-    }
-}
-
-impl Default for InputLimits {
-    fn default() -> Self {
-        Self {
-            max_body_bytes: 32 << 20,
-            max_pixels: 16_000_000,
-            max_masks: 256,
-            max_paths: 1024,
-            max_size: 1024,
-            max_iterations: 5000,
-            max_decoded_bytes: 256 << 20,
-            decode_slots: 2,
-            decode_wait: std::time::Duration::from_secs(5),
-        }
-    }
-}
+use super::inputs::{EncodedInputs, InputLimits};
+use super::model::{Priority, WebhookEvent, hex, input_name};
+use super::webhooks::WebhookRequest;
+use crate::pipeline::Params;
 
 /// The encoded inputs and parameters of one job, as uploaded.
 pub struct Submission {
-    pub image: Bytes,
-    pub albedo: Option<Bytes>,
-    pub masks: Vec<Bytes>,
-    pub labels: Option<Bytes>,
+    pub inputs: EncodedInputs,
     pub params: Params,
     /// `webhook` and `webhook_events`, unchecked ([`super::webhooks::Webhooks::target`] checks).
     pub webhook: WebhookRequest,
@@ -99,13 +32,6 @@ pub struct Submission {
     /// The image's file name as sent, made safe ([`input_name`]); not part of the fingerprint:
     /// a retry of the same image under another name is the same job.
     pub input_name: Option<String>,
-}
-
-/// The webhook a submission asks for, as sent.
-#[derive(Default, Serialize)]
-pub struct WebhookRequest {
-    pub url: Option<String>,
-    pub events: Option<Vec<String>>,
 }
 
 /// The JSON form of a submission: images as standard base64, optionally as
@@ -329,10 +255,12 @@ async fn read_multipart(request: Request, limits: &InputLimits) -> Result<Submis
             .map_err(|_| ApiError::InvalidParams(format!("`{name}` is not UTF-8 text")))
     };
     Ok(Submission {
-        image,
-        albedo,
-        masks,
-        labels,
+        inputs: EncodedInputs {
+            image,
+            albedo,
+            masks,
+            labels,
+        },
         params,
         priority: priority
             .map(|priority| parse_priority(&text("priority", priority)?))
@@ -401,18 +329,20 @@ async fn read_json(request: Request, limits: &InputLimits) -> Result<Submission,
         .map(|mask| decode_base64("masks[]", mask))
         .collect::<Result<_, _>>()?;
     Ok(Submission {
-        image: decode_base64("image", &json.image)?,
-        albedo: json
-            .albedo
-            .as_deref()
-            .map(|albedo| decode_base64("albedo", albedo))
-            .transpose()?,
-        masks,
-        labels: json
-            .labels
-            .as_deref()
-            .map(|labels| decode_base64("labels", labels))
-            .transpose()?,
+        inputs: EncodedInputs {
+            image: decode_base64("image", &json.image)?,
+            albedo: json
+                .albedo
+                .as_deref()
+                .map(|albedo| decode_base64("albedo", albedo))
+                .transpose()?,
+            masks,
+            labels: json
+                .labels
+                .as_deref()
+                .map(|labels| decode_base64("labels", labels))
+                .transpose()?,
+        },
         params: json
             .params
             .map(parse_params)
@@ -493,14 +423,15 @@ impl Submission {
             hasher.update((bytes.len() as u64).to_le_bytes());
             hasher.update(bytes);
         };
-        part(b"image", &self.image);
-        if let Some(albedo) = &self.albedo {
+        let inputs = &self.inputs;
+        part(b"image", &inputs.image);
+        if let Some(albedo) = &inputs.albedo {
             part(b"albedo", albedo);
         }
-        for mask in &self.masks {
+        for mask in &inputs.masks {
             part(b"mask", mask);
         }
-        if let Some(labels) = &self.labels {
+        if let Some(labels) = &inputs.labels {
             part(b"labels", labels);
         }
         // Only when sent: fingerprints of submissions without a webhook stay as they were.
@@ -515,98 +446,6 @@ impl Submission {
             part(b"priority", priority.name().as_bytes());
         }
         hex(&hasher.finalize())
-    }
-}
-
-pub fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|byte| format!("{byte:02x}")).collect()
-}
-
-/// Decodes and cross-checks the inputs of a job (CPU work: call off the async runtime).
-/// `accept_truncated`: the client's `accept_truncated` (a JPEG cut short is refused without).
-pub fn decode_inputs(
-    image: &[u8],
-    albedo: Option<&[u8]>,
-    masks: &[Bytes],
-    labels: Option<&[u8]>,
-    limits: &InputLimits,
-    accept_truncated: bool,
-) -> Result<Inputs, ApiError> {
-    if !masks.is_empty() && labels.is_some() {
-        return Err(ApiError::InvalidInput(
-            "send either `mask` fields or one `labels` map, not both".into(),
-        ));
-    }
-    let decode_limits = limits.decoding(accept_truncated);
-    let mut decoded = 0u64;
-    let mut count = |bytes: usize| {
-        decoded += bytes as u64;
-        if decoded > limits.max_decoded_bytes {
-            return Err(ApiError::InputsTooLarge {
-                limit: limits.max_decoded_bytes,
-                actual: decoded,
-            });
-        }
-        Ok(())
-    };
-    let image = imageio::decode_image(image, &decode_limits).map_err(input_error("image"))?;
-    count(image.as_bytes().len())?;
-    let albedo = match albedo {
-        Some(bytes) => {
-            let albedo =
-                imageio::decode_image(bytes, &decode_limits).map_err(input_error("albedo"))?;
-            count(albedo.as_bytes().len())?;
-            Some(albedo)
-        }
-        None => None,
-    };
-    let masks = if let Some(labels) = labels {
-        let labels =
-            imageio::decode_labels(labels, &decode_limits).map_err(input_error("label map"))?;
-        count(labels.as_bytes().len())?;
-        Masks::Labels(labels)
-    } else if masks.is_empty() {
-        Masks::None
-    } else {
-        let mut binary = Vec::with_capacity(masks.len());
-        for (index, bytes) in masks.iter().enumerate() {
-            let name = format!("mask {index}");
-            let mask =
-                imageio::decode_mask(&name, bytes, &decode_limits).map_err(input_error("mask"))?;
-            count(mask.len())?;
-            binary.push(mask);
-        }
-        Masks::Binary(binary)
-    };
-    let inputs = Inputs {
-        image,
-        albedo,
-        masks,
-    };
-    inputs.check().map_err(input_error("inputs"))?;
-    Ok(inputs)
-}
-
-/// Maps a decoding refusal to its problem: limits are 413, the rest 422.
-pub(super) fn input_error(what: &'static str) -> impl Fn(imageio::InputError) -> ApiError {
-    move |error| match error {
-        imageio::InputError::Undecodable(detail) => ApiError::UndecodableImage(what, detail),
-        imageio::InputError::TooManyPixels { pixels, max, .. } => ApiError::TooManyPixels {
-            limit: max,
-            actual: pixels,
-        },
-        imageio::InputError::TooManyMasks { count, max } => ApiError::TooManyMasks {
-            limit: max as u64,
-            actual: count as u64,
-        },
-        imageio::InputError::TooManyLabels { max } => ApiError::TooManyLabels { limit: max as u64 },
-        imageio::InputError::Truncated => ApiError::TruncatedImage(what),
-        aspect @ imageio::InputError::AspectRatio { .. } => {
-            ApiError::InvalidInput(aspect.to_string())
-        }
-        other @ (imageio::InputError::Empty { .. } | imageio::InputError::NonBinaryMask { .. }) => {
-            ApiError::InvalidInput(format!("{what}: {other}"))
-        }
     }
 }
 

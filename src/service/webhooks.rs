@@ -29,10 +29,10 @@ use hyper_rustls::HttpsConnector;
 use hyper_util::client::legacy::Client;
 use hyper_util::client::legacy::connect::HttpConnector;
 use hyper_util::rt::TokioExecutor;
+use serde::Serialize;
 use sha2::Sha256;
 use tracing::{info, warn};
 
-use super::error::ApiError;
 use super::model::{
     Attempt, Delivery, DeliveryStatus, JobRecord, Status, Webhook, WebhookEvent, WebhookMessage,
     now_ms,
@@ -40,7 +40,6 @@ use super::model::{
 use super::queue::Queue;
 use super::runner::JobEntry;
 use super::store::{StoreError, retry_transient};
-use super::submit::WebhookRequest;
 use super::worker::REAP_EVERY;
 
 /// Webhook settings of `covec serve`.
@@ -102,6 +101,23 @@ pub struct Webhooks {
     queue: Arc<Queue>,
 }
 
+/// The webhook a submission asks for, as sent.
+#[derive(Default, Serialize)]
+pub struct WebhookRequest {
+    pub url: Option<String>,
+    pub events: Option<Vec<String>>,
+}
+
+/// Why a submission's webhook is refused (422 `invalid-params` or `webhook-host-not-allowed`).
+#[derive(Debug, thiserror::Error)]
+pub enum WebhookRefusal {
+    /// A malformed `webhook` or `webhook_events`.
+    #[error("{0}")]
+    Invalid(String),
+    #[error("webhooks to `{0}` are not allowed by this server")]
+    HostNotAllowed(String),
+}
+
 impl Webhooks {
     /// Checks the configuration and, on the shared backend, starts taking over the deliveries
     /// of replicas that stopped (call inside the runtime).
@@ -151,17 +167,17 @@ impl Webhooks {
     /// The webhook a submission asks for, if any, once its URL and events are checked: 422
     /// `invalid-params` for a malformed one, `webhook-host-not-allowed` for a destination
     /// outside the allow-list.
-    pub fn target(&self, request: WebhookRequest) -> Result<Option<Webhook>, ApiError> {
+    pub fn target(&self, request: WebhookRequest) -> Result<Option<Webhook>, WebhookRefusal> {
         let Some(url) = request.url else {
             if request.events.is_some() {
-                return Err(ApiError::InvalidParams(
+                return Err(WebhookRefusal::Invalid(
                     "`webhook_events` needs a `webhook` URL".into(),
                 ));
             }
             return Ok(None);
         };
         let malformed = || {
-            ApiError::InvalidParams(format!(
+            WebhookRefusal::Invalid(format!(
                 "`webhook` must be an absolute http or https URL of at most {MAX_URL_CHARS} \
                  characters, without user information, not `{url}`"
             ))
@@ -184,7 +200,7 @@ impl Webhooks {
             return Err(malformed());
         }
         if !self.allows(&host) {
-            return Err(ApiError::WebhookHostNotAllowed(host));
+            return Err(WebhookRefusal::HostNotAllowed(host));
         }
         let events = match request.events {
             None => vec![WebhookEvent::Completed],
@@ -192,7 +208,7 @@ impl Webhooks {
                 let mut events = Vec::new();
                 for name in names {
                     let event = WebhookEvent::from_name(&name).ok_or_else(|| {
-                        ApiError::InvalidParams(format!(
+                        WebhookRefusal::Invalid(format!(
                             "`webhook_events` may hold `started` and `completed`, not `{name}`"
                         ))
                     })?;
@@ -201,7 +217,7 @@ impl Webhooks {
                     }
                 }
                 if events.is_empty() {
-                    return Err(ApiError::InvalidParams("`webhook_events` is empty".into()));
+                    return Err(WebhookRefusal::Invalid("`webhook_events` is empty".into()));
                 }
                 events
             }

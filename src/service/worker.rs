@@ -20,11 +20,10 @@ use axum::extract::State;
 use axum::response::Response;
 use axum::routing::get;
 
-use super::error::ApiError;
 use super::fair::Scheduling;
-use super::model::CancelReason;
+use super::model::{CancelReason, Problem};
 use super::ops;
-use super::runner::{JobEntry, Runner, Settled, job_pool, lock};
+use super::runner::{JobEntry, JobFailure, Runner, Settled, job_pool, lock};
 use super::store::{Beat, Claim, MAX_ATTEMPTS, Postgres, retry_transient};
 
 /// Longest gap between two heartbeats of a running job: how stale its progress row may be,
@@ -40,7 +39,7 @@ pub const REAP_EVERY: Duration = Duration::from_secs(2);
 /// Takes back the jobs whose lease expired ([`Postgres::reap`]): queued again, or failed with
 /// `workers-lost` after [`MAX_ATTEMPTS`]. Failures are logged: the next look tries again.
 pub fn reap_expired(postgres: &Postgres, retention: Duration) {
-    let lost = ApiError::WorkersLost(MAX_ATTEMPTS as u32).problem();
+    let lost = Problem::from(JobFailure::WorkersLost(MAX_ATTEMPTS as u32));
     if let Err(error) = postgres.reap(lost, retention) {
         warn!("taking back expired leases: {error}");
     }

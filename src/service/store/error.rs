@@ -3,8 +3,6 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use crate::service::error::ApiError;
-
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     #[error("data directory {path}: {source}")]
@@ -187,19 +185,6 @@ pub fn retry_transient<T>(
                 std::thread::sleep(*delay);
             }
             result => return result,
-        }
-    }
-}
-
-/// A failure of the moment (the database or the store out of reach, a full disk) is 503
-/// `storage-unavailable` with `Retry-After`: the same request may well succeed shortly.
-impl From<StoreError> for ApiError {
-    fn from(error: StoreError) -> Self {
-        tracing::error!(%error, "storage error");
-        if error.is_transient() {
-            ApiError::StorageUnavailable(error.public_detail())
-        } else {
-            ApiError::Internal(error.public_detail())
         }
     }
 }

@@ -620,5 +620,5 @@ const FOLDER_DIGESTS: &str = "checksums.json";
 
 /// SHA-256 of a stored file in hex, recorded when it is written and checked when it is served.
 pub fn digest(bytes: &[u8]) -> String {
-    super::submit::hex(&Sha256::digest(bytes))
+    super::model::hex(&Sha256::digest(bytes))
 }

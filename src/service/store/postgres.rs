@@ -28,9 +28,8 @@ use tokio_postgres::Row;
 use super::error::{StoreError, with_sources};
 use super::parse_record;
 use super::postgres_tls::TlsSettings;
-use crate::service::error::Problem;
 use crate::service::fair::Scheduling;
-use crate::service::model::{JobRecord, Status};
+use crate::service::model::{JobRecord, Problem, Status};
 
 /// The schema, version by version; a version once released is never edited.
 const MIGRATIONS: [(i32, &str); 4] = [
