@@ -34,12 +34,12 @@ use sha2::Sha256;
 use tracing::{info, warn};
 
 use super::model::{
-    Attempt, Delivery, DeliveryStatus, JobRecord, Status, Webhook, WebhookEvent, WebhookMessage,
-    now_ms,
+    Attempt, Delivery, DeliveryStatus, JobRecord, Status, Webhook, WebhookEvent, now_ms,
 };
 use super::queue::Queue;
 use super::runner::JobEntry;
-use super::store::{StoreError, retry_transient};
+use super::store::StoreError;
+use super::view::WebhookMessage;
 use super::worker::REAP_EVERY;
 
 /// Webhook settings of `covec serve`.
@@ -148,18 +148,14 @@ impl Webhooks {
         });
         // On the shared backend deliveries are made by the replica that admitted the job, and
         // taken over by another when that one stops (docs/operations.md).
-        if webhooks.queue.is_shared() {
-            tokio::spawn(Arc::clone(&webhooks).take_over());
-        }
+        tokio::spawn(Arc::clone(&webhooks).take_over());
         Ok(webhooks)
     }
 
-    /// Embedded backend: resumes the unfinished deliveries of stored jobs (after a start).
+    /// Resumes the unfinished deliveries of stored jobs (after a start).
     pub fn resume(self: &Arc<Self>) -> Result<(), StoreError> {
-        if !self.queue.is_shared() {
-            for entry in self.queue.unfinished_webhooks()? {
-                self.follow(entry);
-            }
+        for entry in self.queue.deliveries_to_resume()? {
+            self.follow(entry);
         }
         Ok(())
     }
@@ -256,27 +252,13 @@ impl Webhooks {
         }
     }
 
-    /// Shared backend: every [`REAP_EVERY`], renews this replica's claims on deliveries and
-    /// follows the jobs whose deliverer stopped.
+    /// Every [`REAP_EVERY`]: follows the jobs whose deliverer stopped (shared backend), this
+    /// replica's claims renewed.
     async fn take_over(self: Arc<Self>) {
         loop {
             tokio::time::sleep(REAP_EVERY).await;
             let queue = Arc::clone(&self.queue);
-            let taken = tokio::task::spawn_blocking(move || {
-                let postgres = queue
-                    .store()
-                    .shared()
-                    .expect("started on the shared backend");
-                let mut entries = Vec::new();
-                for id in postgres.renew_deliveries()? {
-                    match queue.find(&id)? {
-                        Some(entry) => entries.push(entry),
-                        None => postgres.deliveries_done(&id)?,
-                    }
-                }
-                Ok::<_, StoreError>(entries)
-            })
-            .await;
+            let taken = tokio::task::spawn_blocking(move || queue.deliveries_to_take_over()).await;
             match taken {
                 Ok(Ok(entries)) => {
                     for entry in entries {
@@ -290,22 +272,14 @@ impl Webhooks {
         }
     }
 
-    /// Delivers the job's events, then (shared backend) gives up this replica's claim.
+    /// Delivers the job's events, then gives up this replica's claim on them.
     async fn run(self: Arc<Self>, entry: Arc<JobEntry>) {
         self.deliver_events(&entry).await;
-        if self.queue.is_shared() {
-            let (queue, id) = (Arc::clone(&self.queue), entry.id.clone());
-            let done = tokio::task::spawn_blocking(move || {
-                let postgres = queue.store().shared().expect("checked above");
-                retry_transient("ending webhook deliveries", || {
-                    postgres.deliveries_done(&id)
-                })
-            })
-            .await;
-            if let Ok(Err(error)) = done {
-                // The claim expires and another replica finds nothing left to deliver.
-                warn!(job_id = %entry.id, "ending webhook deliveries: {error}");
-            }
+        let (queue, id) = (Arc::clone(&self.queue), entry.id.clone());
+        let done = tokio::task::spawn_blocking(move || queue.deliveries_done(&id)).await;
+        if let Ok(Err(error)) = done {
+            // The claim expires and another replica finds nothing left to deliver.
+            warn!(job_id = %entry.id, "ending webhook deliveries: {error}");
         }
     }
 
