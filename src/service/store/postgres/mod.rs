@@ -25,23 +25,30 @@ use std::time::{Duration, SystemTime};
 use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
 use tokio_postgres::Row;
 
+mod leases;
+mod replicas;
+
 use super::error::{StoreError, with_sources};
 use super::parse_record;
 use super::postgres_tls::TlsSettings;
-use crate::service::fair::Scheduling;
-use crate::service::model::{JobRecord, Problem, Status};
+use crate::service::model::{JobRecord, Status};
+pub use leases::{Beat, Claim, MAX_ATTEMPTS};
+pub use replicas::{Canceled, Inserted};
 
 /// The schema, version by version; a version once released is never edited.
 const MIGRATIONS: [(i32, &str); 4] = [
-    (1, include_str!("../../../migrations/0001_jobs.sql")),
+    (1, include_str!("../../../../migrations/0001_jobs.sql")),
     (
         2,
-        include_str!("../../../migrations/0002_webhook_deliveries.sql"),
+        include_str!("../../../../migrations/0002_webhook_deliveries.sql"),
     ),
-    (3, include_str!("../../../migrations/0003_fair_queue.sql")),
+    (
+        3,
+        include_str!("../../../../migrations/0003_fair_queue.sql"),
+    ),
     (
         4,
-        include_str!("../../../migrations/0004_bounded_records.sql"),
+        include_str!("../../../../migrations/0004_bounded_records.sql"),
     ),
 ];
 
@@ -50,15 +57,6 @@ const MIGRATIONS: [(i32, &str); 4] = [
 const MIGRATION_LOCK: i64 = 7_316_290_414;
 const CLAIM_LOCK: i64 = 7_316_290_415;
 const CLIENT_LOCK: i32 = 7316;
-
-/// Runs of one job, the first included, before a job whose worker keeps vanishing is failed
-/// (`workers-lost`): one lost worker is bad luck, three in a row is likely the job itself.
-pub const MAX_ATTEMPTS: i32 = 3;
-
-/// How long an API replica's claim on delivering a job's webhook events holds unless renewed
-/// ([`Postgres::renew_deliveries`]): when the replica stops, another takes the deliveries over
-/// after this. Short, as a delay to the receiver; renewals come every few seconds.
-pub const DELIVERY_LEASE: Duration = Duration::from_secs(10);
 
 /// Connections per process: a handful of short statements at a time.
 const POOL_SIZE: usize = 8;
@@ -91,43 +89,6 @@ impl Drop for Postgres {
             runtime.shutdown_background();
         }
     }
-}
-
-/// What inserting a submitted job did.
-pub enum Inserted {
-    Created,
-    /// A live job holds this (owner, Idempotency-Key): its record.
-    Existing(Box<JobRecord>),
-    /// The queue holds this many jobs already.
-    Full(usize),
-    /// The job's client has this many jobs queued already, its limit.
-    KeyFull(usize),
-}
-
-/// What asking a job to cancel did.
-pub enum Canceled {
-    /// It was queued and is now canceled.
-    Ended,
-    /// It is running: its worker stops it at its next heartbeat.
-    Stopping,
-    /// It had ended already (or is gone).
-    Nothing,
-}
-
-/// What a running job's heartbeat learned.
-pub enum Beat {
-    /// The lease is renewed; whether a cancel was asked for.
-    Held { cancel: bool },
-    /// The job was deleted: stop and remove its files.
-    Deleted,
-    /// Another worker holds the job now (this lease expired): stop and save nothing.
-    Lost,
-}
-
-/// A claimed job: its record (marked running) and the lease's token.
-pub struct Claim {
-    pub record: JobRecord,
-    pub token: String,
 }
 
 /// A change to a job since the last look ([`Postgres::changes`]).
@@ -233,108 +194,6 @@ impl Postgres {
             }
             transaction.commit().await?;
             Ok(())
-        })
-    }
-
-    /// Inserts a queued job unless the queue holds `max_queued` jobs, its client `key_limit`
-    /// queued jobs, or a live job has its Idempotency-Key (then that job's record). The
-    /// client's count and the insert hold its advisory lock, so replicas admitting its jobs
-    /// at once cannot pass the limit together.
-    /// A key used before `keys_since` (Unix ms) has expired: the job that held it keeps its
-    /// record but not the key.
-    pub fn insert(
-        &self,
-        record: &JobRecord,
-        max_queued: usize,
-        key_limit: Option<usize>,
-        keys_since: u64,
-    ) -> Result<Inserted, StoreError> {
-        let json = to_json(record);
-        let (id, owner) = (record.id.clone(), record.owner.clone());
-        let (job_client, priority) = (record.client.clone(), record.priority.name());
-        let key = record.idempotency.as_ref().map(|i| i.key.clone());
-        let (replica, lease) = (self.replica.clone(), DELIVERY_LEASE.as_secs_f64());
-        let webhook = record.webhook.is_some();
-        let keys_since = keys_since as i64;
-        self.run(move |mut client| async move {
-            // The earlier job, looked for first: a replay is answered even when the queue is full.
-            if let Some(existing) = by_key(&client, &owner, &key, keys_since).await? {
-                return Ok(Inserted::Existing(Box::new(existing)));
-            }
-            let transaction = client.transaction().await?;
-            transaction
-                .execute(
-                    "SELECT pg_advisory_xact_lock($1, hashtext($2))",
-                    &[&CLIENT_LOCK, &job_client],
-                )
-                .await?;
-            let row = transaction
-                .query_one(
-                    "SELECT count(*), count(*) FILTER (WHERE client = $1)
-                     FROM jobs WHERE status = 'queued' AND NOT deleted",
-                    &[&job_client],
-                )
-                .await?;
-            let (queued, mine) = (row.get::<_, i64>(0) as usize, row.get::<_, i64>(1) as usize);
-            if queued >= max_queued {
-                return Ok(Inserted::Full(queued));
-            }
-            if key_limit.is_some_and(|limit| mine >= limit) {
-                return Ok(Inserted::KeyFull(mine));
-            }
-            if let Some(key) = &key {
-                // An expired holder of the key frees it for this job (the unique index).
-                transaction
-                    .execute(
-                        &format!(
-                            "UPDATE jobs SET {DROP_KEY}
-                             WHERE coalesce(owner, '') = $1 AND idempotency_key = $2
-                                 AND (record ->> 'created_at')::bigint < $3"
-                        ),
-                        &[&owner.clone().unwrap_or_default(), key, &keys_since],
-                    )
-                    .await?;
-            }
-            // With its webhook deliveries claimed by this replica in the same statement, so
-            // no job with a webhook is ever without a deliverer.
-            let inserted: i64 = transaction
-                .query_one(
-                    "WITH job AS (
-                         INSERT INTO jobs (id, owner, status, record, idempotency_key, client,
-                             priority)
-                         VALUES ($1, $2, 'queued', $3::text::jsonb, $4, $8, $9)
-                         ON CONFLICT DO NOTHING RETURNING id),
-                     deliverer AS (
-                         INSERT INTO webhook_deliveries (job_id, replica, lease_expires_at)
-                         SELECT id, $5, clock_timestamp() + make_interval(secs => $6)
-                         FROM job WHERE $7)
-                     SELECT count(*) FROM job",
-                    &[
-                        &id,
-                        &owner,
-                        &json,
-                        &key,
-                        &replica,
-                        &lease,
-                        &webhook,
-                        &job_client,
-                        &priority,
-                    ],
-                )
-                .await?
-                .get(0);
-            transaction.commit().await?;
-            if inserted == 1 {
-                return Ok(Inserted::Created);
-            }
-            // Another replica inserted the same key meanwhile.
-            match by_key(&client, &owner, &key, keys_since).await? {
-                Some(existing) => Ok(Inserted::Existing(Box::new(existing))),
-                None => Err(StoreError::CorruptRecord {
-                    id,
-                    reason: "its insert conflicted with no live job".into(),
-                }),
-            }
         })
     }
 
@@ -568,37 +427,6 @@ impl Postgres {
         Ok(self.get(id)?.is_some())
     }
 
-    /// Cancels a queued job (its record becomes `ended`), or asks the worker running it to stop.
-    pub fn cancel(&self, ended: &JobRecord) -> Result<Canceled, StoreError> {
-        let (id, json) = (ended.id.clone(), to_json(ended));
-        self.run(move |client| async move {
-            let canceled = client
-                .execute(
-                    &format!(
-                        "UPDATE jobs SET status = 'canceled', record = $2::text::jsonb {KEEP_WEBHOOK}
-                         WHERE id = $1 AND status = 'queued' AND NOT deleted"
-                    ),
-                    &[&id, &json],
-                )
-                .await?;
-            if canceled == 1 {
-                return Ok(Canceled::Ended);
-            }
-            let asked = client
-                .execute(
-                    "UPDATE jobs SET cancel_requested = true
-                     WHERE id = $1 AND status = 'running' AND NOT deleted",
-                    &[&id],
-                )
-                .await?;
-            Ok(if asked == 1 {
-                Canceled::Stopping
-            } else {
-                Canceled::Nothing
-            })
-        })
-    }
-
     /// Marks a job deleted for good: the commit point of a DELETE. Its worker, if it runs,
     /// learns it at its next heartbeat; the row goes in [`Postgres::purge_tombstones`].
     pub fn tombstone(&self, id: &str) -> Result<(), StoreError> {
@@ -655,236 +483,6 @@ impl Postgres {
                 )
                 .await?;
             Ok(())
-        })
-    }
-
-    /// Renews this replica's claims on webhook deliveries and takes over those whose claim
-    /// expired (their replica stopped); the jobs taken over.
-    pub fn renew_deliveries(&self) -> Result<Vec<String>, StoreError> {
-        let (replica, lease) = (self.replica.clone(), DELIVERY_LEASE.as_secs_f64());
-        self.run(move |client| async move {
-            client
-                .execute(
-                    "UPDATE webhook_deliveries
-                     SET lease_expires_at = clock_timestamp() + make_interval(secs => $2)
-                     WHERE replica = $1",
-                    &[&replica, &lease],
-                )
-                .await?;
-            let taken = client
-                .query(
-                    "UPDATE webhook_deliveries
-                     SET replica = $1, lease_expires_at = clock_timestamp() + make_interval(secs => $2)
-                     WHERE job_id IN (
-                         SELECT job_id FROM webhook_deliveries
-                         WHERE lease_expires_at < clock_timestamp()
-                         ORDER BY lease_expires_at LIMIT 100 FOR UPDATE SKIP LOCKED)
-                     RETURNING job_id",
-                    &[&replica, &lease],
-                )
-                .await?;
-            Ok(taken.iter().map(|row| row.get(0)).collect())
-        })
-    }
-
-    /// This replica is done with the job's webhook deliveries: all made or given up, or the
-    /// job is gone.
-    pub fn deliveries_done(&self, id: &str) -> Result<(), StoreError> {
-        let (id, replica) = (id.to_owned(), self.replica.clone());
-        self.run(move |client| async move {
-            client
-                .execute(
-                    "DELETE FROM webhook_deliveries WHERE job_id = $1 AND replica = $2",
-                    &[&id, &replica],
-                )
-                .await?;
-            Ok(())
-        })
-    }
-
-    /// Takes the queued job the fair rule picks ([`crate::service::fair`]: keys below their
-    /// running limit; interactive first, a batch job counting as interactive once it has
-    /// waited `batch_age`; then the key with the fewest running, the one served longest ago,
-    /// its oldest job), if any, with a lease of `lease` under a new token, and records its
-    /// client as served. Its record comes back marked running (started now), one attempt more.
-    /// Claims take turns (an advisory lock), so each sees the running counts the last left.
-    pub fn claim(&self, lease: Duration, policy: &Scheduling) -> Result<Option<Claim>, StoreError> {
-        let token = uuid::Uuid::now_v7().simple().to_string();
-        let default_running = policy.limits.running.map_or(i64::MAX, |limit| limit as i64);
-        let (limited, running_limits): (Vec<String>, Vec<i64>) = policy
-            .overrides
-            .iter()
-            .map(|(client, limits)| {
-                let limit = limits.running.map_or(i64::MAX, |limit| limit as i64);
-                (client.clone(), limit)
-            })
-            .unzip();
-        let batch_age_ms = policy.batch_age.as_millis() as i64;
-        self.run(move |mut client| async move {
-            let transaction = client.transaction().await?;
-            transaction
-                .execute("SELECT pg_advisory_xact_lock($1)", &[&CLAIM_LOCK])
-                .await?;
-            let picked = transaction
-                .query_opt(
-                    "WITH running AS (
-                         SELECT client, count(*) AS jobs FROM jobs
-                         WHERE status = 'running' AND NOT deleted GROUP BY client
-                     ), limits AS (
-                         SELECT * FROM unnest($1::text[], $2::bigint[]) AS l (client, running)
-                     )
-                     SELECT j.id, (extract(epoch FROM statement_timestamp()) * 1000)::bigint
-                     FROM jobs j
-                         LEFT JOIN running r ON r.client = j.client
-                         LEFT JOIN limits l ON l.client = j.client
-                         LEFT JOIN queue_clients s ON s.client = j.client
-                     WHERE j.status = 'queued' AND NOT j.deleted
-                         AND coalesce(r.jobs, 0) < coalesce(l.running, $3)
-                     ORDER BY
-                         j.priority = 'batch' AND (j.record ->> 'created_at')::bigint
-                             > (extract(epoch FROM clock_timestamp()) * 1000)::bigint - $4,
-                         coalesce(r.jobs, 0), s.last_served NULLS FIRST, j.id
-                     LIMIT 1 FOR UPDATE OF j SKIP LOCKED",
-                    &[&limited, &running_limits, &default_running, &batch_age_ms],
-                )
-                .await?;
-            let Some(picked) = picked else {
-                return Ok(None);
-            };
-            let id: String = picked.get(0);
-            // When the choice was made (the statement's start, when it saw the queue): a job
-            // submitted after it was not there to choose.
-            let chosen_at = picked.get::<_, i64>(1).max(0) as u64;
-            let row = transaction
-                .query_one(
-                    &format!(
-                        "UPDATE jobs SET status = 'running', attempts = attempts + 1,
-                             cancel_requested = false, lease_owner = $1,
-                             lease_expires_at = clock_timestamp() + make_interval(secs => $2)
-                         WHERE id = $3
-                         RETURNING {RECORD_COLUMNS}, client"
-                    ),
-                    &[&token, &lease.as_secs_f64(), &id],
-                )
-                .await?;
-            let served: String = row.get(5);
-            transaction
-                .execute(
-                    "INSERT INTO queue_clients (client, last_served) VALUES ($1, clock_timestamp())
-                     ON CONFLICT (client) DO UPDATE SET last_served = excluded.last_served",
-                    &[&served],
-                )
-                .await?;
-            transaction.commit().await?;
-            let mut record = record_of(&row)?;
-            record.started_at = Some(chosen_at);
-            Ok(Some(Claim { record, token }))
-        })
-    }
-
-    /// Renews a running job's lease for `lease`, storing its record when given (progress,
-    /// previews), and says whether to go on.
-    pub fn heartbeat(
-        &self,
-        token: &str,
-        lease: Duration,
-        record: Option<&JobRecord>,
-        id: &str,
-    ) -> Result<Beat, StoreError> {
-        let (id, token, json) = (id.to_owned(), token.to_owned(), record.map(to_json));
-        self.run(move |client| async move {
-            let row = client
-                .query_opt(
-                    &format!(
-                        "UPDATE jobs SET
-                             lease_expires_at = clock_timestamp() + make_interval(secs => $3),
-                             record = coalesce($4::text::jsonb {KEEP_WEBHOOK}, jobs.record)
-                         WHERE id = $1 AND lease_owner = $2 AND status = 'running' AND NOT deleted
-                         RETURNING cancel_requested"
-                    ),
-                    &[&id, &token, &lease.as_secs_f64(), &json],
-                )
-                .await?;
-            if let Some(row) = row {
-                return Ok(Beat::Held { cancel: row.get(0) });
-            }
-            let deleted = client
-                .query_opt("SELECT deleted FROM jobs WHERE id = $1", &[&id])
-                .await?
-                .is_none_or(|row| row.get(0));
-            Ok(if deleted { Beat::Deleted } else { Beat::Lost })
-        })
-    }
-
-    /// Saves the record a run left, if the lease is still `token`'s, and releases the job:
-    /// ended, or queued again (`requeued`, stopped by shutdown: that attempt does not count).
-    /// Returns whether it was saved.
-    pub fn settle(&self, token: &str, record: &JobRecord) -> Result<bool, StoreError> {
-        let (id, token, json) = (record.id.clone(), token.to_owned(), to_json(record));
-        let status = record.status.name();
-        let refund: i32 = (record.status == Status::Queued).into();
-        self.run(move |client| async move {
-            let saved = client
-                .execute(
-                    &format!(
-                        "UPDATE jobs SET status = $3, record = $4::text::jsonb {KEEP_WEBHOOK},
-                             attempts = attempts - $5, cancel_requested = false,
-                             lease_owner = NULL, lease_expires_at = NULL
-                         WHERE id = $1 AND lease_owner = $2 AND NOT deleted"
-                    ),
-                    &[&id, &token, &status, &json, &refund],
-                )
-                .await?;
-            Ok(saved == 1)
-        })
-    }
-
-    /// Takes back the jobs whose lease expired (their worker stopped without a word): each is
-    /// queued again, or failed with `lost` once it has had [`MAX_ATTEMPTS`] runs. Returns
-    /// (requeued, failed).
-    pub fn reap(&self, lost: Problem, retention: Duration) -> Result<(usize, usize), StoreError> {
-        self.run(move |mut client| async move {
-            let transaction = client.transaction().await?;
-            let rows = transaction
-                .query(
-                    &format!(
-                        "SELECT {RECORD_COLUMNS} FROM jobs WHERE status = 'running'
-                             AND lease_expires_at < clock_timestamp() AND NOT deleted
-                         FOR UPDATE SKIP LOCKED"
-                    ),
-                    &[],
-                )
-                .await?;
-            let (mut requeued, mut failed) = (0, 0);
-            for row in &rows {
-                let mut record = record_of(row)?;
-                if record.attempts as i32 >= MAX_ATTEMPTS {
-                    record.end(Status::Failed, Some(lost.clone()), None, retention);
-                    failed += 1;
-                } else {
-                    record.requeue();
-                    requeued += 1;
-                }
-                tracing::warn!(
-                    job_id = %record.id,
-                    attempts = record.attempts,
-                    status = record.status.name(),
-                    "a worker's lease expired"
-                );
-                transaction
-                    .execute(
-                        &format!(
-                            "UPDATE jobs SET status = $2, record = $3::text::jsonb {KEEP_WEBHOOK},
-                                 cancel_requested = false, lease_owner = NULL,
-                                 lease_expires_at = NULL
-                             WHERE id = $1"
-                        ),
-                        &[&record.id, &record.status.name(), &to_json(&record)],
-                    )
-                    .await?;
-            }
-            transaction.commit().await?;
-            Ok((requeued, failed))
         })
     }
 
