@@ -1,15 +1,19 @@
 //! Operations endpoints: `/healthz`, `/readyz`, `/metrics` (Prometheus text format, what
 //! [`Metrics`] recorded), and the middleware that records every request.
 
+use std::sync::Arc;
 use std::time::Instant;
 
+use axum::Router;
 use axum::extract::{MatchedPath, Request, State};
 use axum::http::{Method, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
+use axum::routing::get;
 
 use super::store::StoreError;
 use super::telemetry::{Metrics, QueueGauges};
+use super::worker::Workers;
 use super::{AppState, Endpoint, endpoint};
 
 /// The liveness probe's path, on the API port and on a worker's `--ops-addr`.
@@ -21,6 +25,24 @@ pub fn endpoints() -> Vec<Endpoint> {
         endpoint(Method::GET, "/readyz", readyz),
         endpoint(Method::GET, "/metrics", metrics),
     ]
+}
+
+/// The worker's own HTTP port (`covec worker --ops-addr`), for probes and scraping:
+/// `/healthz`, `/readyz` (storage reachable, every slot alive, not draining) and `/metrics`
+/// (job durations and outcomes, `covec_workers`; the queue's depth is on the API replicas').
+pub fn worker_app(workers: &Arc<Workers>) -> Router {
+    async fn ready(State(workers): State<Arc<Workers>>) -> Response {
+        let runner = Arc::clone(workers.runner());
+        readiness(move || runner.store.check(), workers.is_ready()).await
+    }
+    async fn metrics(State(workers): State<Arc<Workers>>) -> Response {
+        metrics_text(&workers.runner().metrics, None, workers.slots())
+    }
+    Router::new()
+        .route(LIVENESS_PATH, get(healthz))
+        .route("/readyz", get(ready))
+        .route("/metrics", get(metrics))
+        .with_state(Arc::clone(workers))
 }
 
 /// Liveness: the process answers.

@@ -15,14 +15,8 @@ use std::time::{Duration, Instant};
 
 use tracing::{info, info_span, warn};
 
-use axum::Router;
-use axum::extract::State;
-use axum::response::Response;
-use axum::routing::get;
-
 use super::fair::Scheduling;
 use super::model::{CancelReason, Problem};
-use super::ops;
 use super::runner::{JobEntry, JobFailure, Runner, Settled, job_pool, lock};
 use super::store::{Beat, Claim, MAX_ATTEMPTS, Postgres, retry_transient};
 
@@ -119,23 +113,14 @@ impl Workers {
         Ok(workers)
     }
 
-    /// The worker's own HTTP port (`covec worker --ops-addr`), for probes and scraping:
-    /// `/healthz`, `/readyz` (storage reachable, every slot alive, not draining) and
-    /// `/metrics` (job durations and outcomes, `covec_workers`; the queue's depth is on the
-    /// API replicas').
-    pub fn ops_app(self: &Arc<Self>) -> Router {
-        async fn ready(State(workers): State<Arc<Workers>>) -> Response {
-            let runner = Arc::clone(&workers.runner);
-            ops::readiness(move || runner.store.check(), workers.is_ready()).await
-        }
-        async fn metrics(State(workers): State<Arc<Workers>>) -> Response {
-            ops::metrics_text(&workers.runner.metrics, None, workers.slots)
-        }
-        Router::new()
-            .route(ops::LIVENESS_PATH, get(ops::healthz))
-            .route("/readyz", get(ready))
-            .route("/metrics", get(metrics))
-            .with_state(Arc::clone(self))
+    /// What runs the jobs (its store and metrics serve the worker's probes).
+    pub fn runner(&self) -> &Arc<Runner> {
+        &self.runner
+    }
+
+    /// Job slots started.
+    pub fn slots(&self) -> usize {
+        self.slots
     }
 
     /// Every slot is alive and taking work.
