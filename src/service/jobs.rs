@@ -14,14 +14,12 @@ use serde::Deserialize;
 
 use super::auth::{Client, Owner};
 use super::error::{ApiError, JobProblems, TooManyRequests, Unavailable};
-use super::model::{
-    Idempotency, IdempotentReplayed, JobEvent, JobId, JobList, JobRecord, JobView, Problem, Status,
-    is_job_id, new_job_id,
-};
+use super::model::{Idempotency, JobId, JobRecord, Problem, Status, is_job_id, new_job_id};
 use super::queue::Admission;
 use super::rate::RateState;
 use super::runner::JobEntry;
 use super::submit::{self, JsonSubmission, MultipartSubmission, UploadQuery};
+use super::view::{IdempotentReplayed, JobEvent, JobList, JobView};
 use super::{AppState, Endpoint, endpoint};
 
 pub fn endpoints() -> Vec<Endpoint> {

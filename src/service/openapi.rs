@@ -20,7 +20,8 @@ use utoipa::openapi::{
 use utoipa::{Modify, OpenApi};
 
 use super::error::{TooManyRequests, Unavailable};
-use super::model::{IdempotentReplayed, Problem, WebhookEvent, WebhookMessage};
+use super::model::{Problem, WebhookEvent};
+use super::view::{IdempotentReplayed, WebhookMessage};
 use super::{edits, jobs, limits, ops, results};
 use crate::edit::ReferenceParams;
 

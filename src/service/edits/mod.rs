@@ -4,19 +4,9 @@
 //! result.svg, preview.png}`. An edit may build on an earlier edit (`base`), which gives clients
 //! an undo history for free.
 
+mod bodies;
+
 use std::collections::BTreeMap;
-
-use axum::extract::{FromRequest, Multipart, Path, Request, State};
-use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
-use axum::response::{IntoResponse, Response};
-use axum::{Extension, Json};
-use serde::{Deserialize, Serialize};
-
-use utoipa::ToSchema;
-use utoipa::openapi::schema::{
-    AdditionalProperties, KnownFormat, RefBuilder, SchemaFormat, SchemaType,
-};
-use utoipa::openapi::{ObjectBuilder, OneOfBuilder, Ref, RefOr, Schema, Type};
 
 use super::auth::Owner;
 use super::error::{ApiError, ResultProblems, Unavailable};
@@ -32,8 +22,16 @@ use super::{AppState, Endpoint, endpoint};
 use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
 use crate::imageio::{self, resize_rgb};
 use crate::output::{self, EDIT_FILES, FileKind};
-use crate::scene::{PathId, Point};
+use crate::scene::PathId;
 use crate::svg;
+use axum::extract::{FromRequest, Multipart, Path, Request, State};
+use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::{Extension, Json};
+use bodies::{
+    ChangedView, ColorEdit, EditId, EditKind, EditRecord, EditRequest, EditUrls,
+    ReferenceEditRequest, check_edit_id, new_edit_id,
+};
 
 pub fn endpoints() -> Vec<Endpoint> {
     vec![
@@ -51,231 +49,6 @@ pub fn endpoints() -> Vec<Endpoint> {
             edit_preview,
         ),
     ]
-}
-
-/// Edit id: `edit_` + a UUIDv7 in hex.
-fn new_edit_id() -> String {
-    format!("edit_{}", uuid::Uuid::now_v7().simple())
-}
-
-/// The edit id's schema in the API document: what [`check_edit_id`] accepts.
-struct EditId;
-
-impl utoipa::PartialSchema for EditId {
-    fn schema() -> RefOr<Schema> {
-        ObjectBuilder::new()
-            .schema_type(Type::String)
-            .pattern(Some("^edit_[0-9a-f]{32}$"))
-            .into()
-    }
-}
-
-impl ToSchema for EditId {}
-
-/// A colour in the API document: `#rrggbb`, as [`svg::parse_hex_colour`] reads it.
-struct Colour;
-
-impl utoipa::PartialSchema for Colour {
-    fn schema() -> RefOr<Schema> {
-        ObjectBuilder::new()
-            .schema_type(Type::String)
-            .pattern(Some("^#[0-9a-fA-F]{6}$"))
-            .into()
-    }
-}
-
-impl ToSchema for Colour {}
-
-fn check_edit_id(id: &str) -> Result<(), ApiError> {
-    let valid = id.strip_prefix("edit_").is_some_and(|hex| {
-        hex.len() == 32
-            && hex
-                .bytes()
-                .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
-    });
-    if valid {
-        Ok(())
-    } else {
-        Err(ApiError::BadRequest(format!(
-            "`{id}` is not an edit id (expected `edit_` followed by 32 lowercase hex digits)"
-        )))
-    }
-}
-
-/// JSON form: direct colour changes.
-#[derive(Deserialize, ToSchema)]
-#[schema(as = ColorEditRequest)]
-#[serde(deny_unknown_fields)]
-struct ColorEdit {
-    /// Apply on top of this edit (null or absent for the job's own scene).
-    #[serde(default)]
-    #[schema(value_type = Option<EditId>)]
-    base: Option<String>,
-    #[schema(min_items = 1)]
-    changes: Vec<ChangeRequest>,
-}
-
-/// One change: exactly one of `path` and `at` (a `null` one counts as absent), a colour and
-/// optionally an opacity. The API document gives it as one of two schemas ([`ChangeRequest`]'s
-/// `PartialSchema`), a change by path and a change at a point, so that generated clients get
-/// two plain types.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ChangeRequest {
-    /// A path id such as `albedo-3`; or give `at`.
-    #[serde(default)]
-    path: Option<String>,
-    /// A point in viewBox coordinates: the albedo path under it is recoloured.
-    #[serde(default)]
-    at: Option<Point>,
-    color: String,
-    #[serde(default)]
-    opacity: Option<f32>,
-}
-
-impl utoipa::PartialSchema for ChangeRequest {
-    fn schema() -> RefOr<Schema> {
-        OneOfBuilder::new()
-            .item(Ref::from_schema_name("PathChange"))
-            .item(Ref::from_schema_name("PointChange"))
-            .description(Some("A change by path id or by a point."))
-            .into()
-    }
-}
-
-impl ToSchema for ChangeRequest {
-    fn schemas(schemas: &mut Vec<(String, RefOr<Schema>)>) {
-        let change = |key: &str, target: RefOr<Schema>, description: &str| {
-            ObjectBuilder::new()
-                .property(key, target)
-                .required(key)
-                .property("color", Ref::from_schema_name(Colour::name()))
-                .required("color")
-                .property(
-                    "opacity",
-                    ObjectBuilder::new()
-                        .schema_type(SchemaType::from_iter([Type::Number, Type::Null]))
-                        .minimum(Some(0.0))
-                        .maximum(Some(1.0))
-                        .description(Some("The new opacity (absent or null: unchanged).")),
-                )
-                .additional_properties(Some(AdditionalProperties::FreeForm(false)))
-                .description(Some(description))
-                .into()
-        };
-        let path_id = ObjectBuilder::new()
-            .schema_type(Type::String)
-            .description(Some("A path id such as `albedo-3`."))
-            .into();
-        schemas.push((
-            "PathChange".into(),
-            change("path", path_id, "Recolour the path with this id."),
-        ));
-        schemas.push((
-            "PointChange".into(),
-            change(
-                "at",
-                Ref::from_schema_name(Point::name()).into(),
-                "Recolour the topmost albedo path under this point (viewBox coordinates).",
-            ),
-        ));
-        schemas.push((
-            Colour::name().into(),
-            <Colour as utoipa::PartialSchema>::schema(),
-        ));
-        schemas.push((
-            Point::name().into(),
-            <Point as utoipa::PartialSchema>::schema(),
-        ));
-    }
-}
-
-/// What a stored edit says about itself.
-#[derive(Serialize, Deserialize, ToSchema)]
-#[schema(as = Edit)]
-struct EditRecord {
-    id: String,
-    job_id: String,
-    #[schema(required)]
-    base: Option<String>,
-    kind: EditKind,
-    changed: Vec<ChangedView>,
-    #[schema(format = DateTime)]
-    created_at: String,
-    urls: EditUrls,
-}
-
-#[derive(Serialize, Deserialize, Clone, Copy, ToSchema)]
-#[serde(rename_all = "lowercase")]
-enum EditKind {
-    Colors,
-    Reference,
-}
-
-#[derive(Serialize, Deserialize, ToSchema)]
-struct ChangedView {
-    path: String,
-    #[schema(value_type = Colour)]
-    old_color: String,
-    #[schema(value_type = Colour)]
-    new_color: String,
-    old_opacity: f32,
-    new_opacity: f32,
-}
-
-#[derive(Serialize, Deserialize, ToSchema)]
-struct EditUrls {
-    #[serde(rename = "self")]
-    this: String,
-    svg: String,
-    scene: String,
-    preview: String,
-}
-
-/// The multipart form of an edit in the API document (read by [`read_reference_edit`]).
-struct ReferenceEditRequest;
-
-impl utoipa::PartialSchema for ReferenceEditRequest {
-    fn schema() -> RefOr<Schema> {
-        ObjectBuilder::new()
-            .property(
-                "reference",
-                ObjectBuilder::new()
-                    .schema_type(Type::String)
-                    .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary)))
-                    .description(Some("The edited image, same size as the job's image.")),
-            )
-            .property(
-                "k",
-                ObjectBuilder::new()
-                    .schema_type(Type::Integer)
-                    .minimum(Some(1))
-                    .description(Some("Overrides `params.k`.")),
-            )
-            .property(
-                "params",
-                RefBuilder::new()
-                    .ref_location_from_schema_name(ReferenceParams::name())
-                    .description(Some(
-                        "A JSON part: the thresholds of Appendix D, each optional.",
-                    )),
-            )
-            .property("base", Ref::from_schema_name(EditId::name()))
-            .required("reference")
-            .additional_properties(Some(AdditionalProperties::FreeForm(false)))
-            .into()
-    }
-}
-
-impl ToSchema for ReferenceEditRequest {}
-
-/// The request as read, before the scene is loaded.
-enum EditRequest {
-    Colors(Vec<ColorChange>),
-    Reference {
-        image: axum::body::Bytes,
-        params: ReferenceParams,
-    },
 }
 
 #[utoipa::path(post, path = "/v1/jobs/{id}/edits", tag = "edits", operation_id = "createEdit",
