@@ -8,7 +8,10 @@ fails if
   - a top-level module of the library imports one of a higher layer (LAYERS below), or
   - the files of either crate import each other in a cycle (a parent `mod.rs` naming its own
     children does not count: that is how Rust declares them).
+  - a module of the service imports one of a higher service layer (SERVICE_LAYERS below).
 Prints the edges it refuses and exits 1; prints a one-line summary and exits 0 otherwise.
+`--self-test` checks that it does refuse: an upward import and a cycle, each injected into a
+copy of src/.
 """
 import re
 import sys
@@ -29,22 +32,36 @@ LAYERS = [
 ]
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
 
-SRC = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parent.parent / "src"
+# The service's own layers, bottom to top (docs/design.md, "The service"): what a job is, where
+# records and files are kept, the job backend and the service core, and the HTTP edge (the
+# handlers, `error.rs` turning domain errors into problems, and the service root with the
+# router). A module may import its own layer or a lower one.
+SERVICE_LAYERS = [
+    ["model", "view", "rate", "fair", "conn"],
+    ["store"],
+    ["inputs", "telemetry"],
+    ["runner", "worker", "queue", "webhooks"],
+    ["error", "auth", "submit", "download", "jobs", "results", "edits", "ops", "limits",
+     "openapi", "fuzzing", ""],
+]
+SERVICE_RANK = {name: rank for rank, names in enumerate(SERVICE_LAYERS) for name in names}
+
+SRC = Path(__file__).resolve().parent.parent / "src"
 
 
 # The binary crate's files: its root and the modules it declares.
 BINARY = ("main.rs", "cli")
 
 
-def module_of(path: Path) -> tuple:
-    parts = list(path.relative_to(SRC).with_suffix("").parts)
+def module_of(src: Path, path: Path) -> tuple:
+    parts = list(path.relative_to(src).with_suffix("").parts)
     if parts[-1] in ("mod", "lib", "main"):
         parts.pop()
     return tuple(parts)
 
 
-def in_binary(path: Path) -> bool:
-    return path.relative_to(SRC).parts[0] in BINARY
+def in_binary(src: Path, path: Path) -> bool:
+    return path.relative_to(src).parts[0] in BINARY
 
 
 def code_of(path: Path) -> str:
@@ -58,7 +75,8 @@ def code_of(path: Path) -> str:
 
 def paths_in(code: str):
     """Every `crate::a::b` / `super::a` path, braces expanded one level."""
-    for m in re.finditer(r"\b(crate|super)((?:::\w+)*)(?:::\{([^}]*)\})?", code):
+    # Not `pub(super)` / `pub(crate)`: a visibility, not a path.
+    for m in re.finditer(r"(?<!\()\b(crate|super)((?:::\w+)*)(?:::\{([^}]*)\})?", code):
         head = [m.group(1)] + [p for p in m.group(2).split("::") if p]
         if m.group(3) is None:
             yield head
@@ -69,12 +87,12 @@ def paths_in(code: str):
                     yield head + [p for p in item.split("::") if p and p != "self"]
 
 
-def check(binary: bool):
+def check(src: Path, binary: bool):
     """The refused edges of one crate, and its file and import counts."""
     files = {
-        module_of(p): p
-        for p in SRC.rglob("*.rs")
-        if in_binary(p) == binary and p.name != "tests.rs"
+        module_of(src, p): p
+        for p in src.rglob("*.rs")
+        if in_binary(src, p) == binary and p.name != "tests.rs"
     }
     modules = set(files)
     edges = set()
@@ -105,6 +123,12 @@ def check(binary: bool):
             bad.append(f"{'::'.join(a)} -> {'::'.join(b)}: module missing from LAYERS")
         elif a[0] != b[0] and rb >= ra:
             bad.append(f"{'::'.join(a)} -> {'::'.join(b)}: imports a layer at or above its own")
+        elif a[0] == b[0] == "service":
+            sa, sb = (SERVICE_RANK.get(m[1] if len(m) > 1 else "") for m in (a, b))
+            if sa is None or sb is None:
+                bad.append(f"{'::'.join(a)} -> {'::'.join(b)}: module missing from SERVICE_LAYERS")
+            elif sb > sa:
+                bad.append(f"{'::'.join(a)} -> {'::'.join(b)}: imports a higher service layer")
 
     # Cycles among files (depth-first search).
     graph = {m: sorted(b for a, b in edges if a == m) for m in modules}
@@ -129,13 +153,47 @@ def check(binary: bool):
     return bad, len(modules), len(edges)
 
 
-def main() -> int:
+def refused(src: Path):
+    """What `src` breaks, and its file and import counts."""
     bad, files, imports = [], 0, 0
     for binary in (False, True):
-        crate_bad, crate_files, crate_imports = check(binary)
+        crate_bad, crate_files, crate_imports = check(src, binary)
         bad += crate_bad
         files += crate_files
         imports += crate_imports
+    return bad, files, imports
+
+
+def self_test() -> int:
+    """Injects an upward import (the runner naming the HTTP error type) and a cycle (the queue's
+    state naming its embedded backend, which imports it) into copies of src/: each must be
+    refused."""
+    import shutil
+    import tempfile
+
+    injections = [
+        ("service/runner.rs", "use crate::service::error::ApiError;\n"),
+        ("service/queue/state.rs", "use super::embedded::Embedded;\n"),
+    ]
+    for file, line in injections:
+        with tempfile.TemporaryDirectory() as tmp:
+            copy = Path(tmp) / "src"
+            shutil.copytree(SRC, copy)
+            path = copy / file
+            path.write_text(line + path.read_text())
+            bad, _, _ = refused(copy)
+            if not bad:
+                print(f"check-modules --self-test: `{line.strip()}` in {file} was not refused")
+                return 1
+            print(f"check-modules --self-test: `{line.strip()}` in {file} refused:", *bad,
+                  sep="\n  ")
+    return 0
+
+
+def main() -> int:
+    if sys.argv[1:] == ["--self-test"]:
+        return self_test()
+    bad, files, imports = refused(SRC)
     if bad:
         print("check-modules: the layering is broken:", *bad, sep="\n  ")
         return 1

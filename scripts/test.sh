@@ -14,6 +14,7 @@ scripts/setup-build.sh
 # The code's shape (docs/design.md, "Code map"): layered imports, and a build without the
 # command line's and the service's dependencies.
 python3 scripts/check-modules.py
+python3 scripts/check-modules.py --self-test
 cargo check --quiet --lib --no-default-features
 # The Dockerfile and deploy/ files, which nothing here builds or applies: linted and validated.
 scripts/check-deploy.sh
