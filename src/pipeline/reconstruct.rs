@@ -1,0 +1,130 @@
+//! The reconstruction stage (paper Sec. 4.3): the shared loss ‖I − R(A)·R(I)‖² on the albedo
+//! and illumination (`scene.shade`) layers, one Adam per layer, splitting the segments the loss
+//! pulls hardest ([`super::segments`]), with the kept terms of [`super::keep`].
+
+use super::descent::{Descent, Objective};
+use super::keep::{Held, KeepRun};
+use super::params::{Error, ResolvedMode};
+use super::segments::{SegmentPull, SplitLayer, SplitPlan};
+use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo};
+use super::structure::{Scratch, StructureSettings, layer_adams, reconstruction_loss};
+use crate::optim::Adam;
+use crate::render::{Image, PathGrad};
+use crate::scene::{LayerKind, Scene};
+
+/// How one part (coarse or fine) of the reconstruction runs.
+pub(crate) struct ReconstructionRun<'a> {
+    pub span: IterationSpan,
+    pub settings: &'a StructureSettings,
+    pub keep: Option<&'a KeepRun<'a>>,
+    pub mode: ResolvedMode,
+    /// Up to where the loop splits segments ([`super::segments`]).
+    pub split: SplitPlan,
+}
+
+/// Runs the span's iterations of the shared reconstruction loss ‖I − R(A)·R(I)‖² on both
+/// layers, one Adam per layer, stopping early once the loss has plateaued, splitting the
+/// segments the loss pulls hardest as the plan says. Returns the loss before and after.
+/// The albedo layer is held as [`hold_albedo`] says.
+pub(crate) fn optimise_reconstruction(
+    scene: &mut Scene,
+    target: &Image,
+    run: &ReconstructionRun,
+    stage: &StageRun,
+) -> Result<[f32; 2], Error> {
+    let ReconstructionRun {
+        span,
+        settings,
+        keep,
+        mode,
+        split,
+    } = *run;
+    let (w, h) = (target.width, target.height);
+    let mut canvas = Canvas::new(w, h);
+    let mut scratch = Scratch::default();
+    let initial = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
+    let mut adams = layer_adams(settings, w, h);
+    let held = keep.map(|k| k.held(&mut canvas, scene, &[LayerKind::Shade], settings));
+    let mut objective = Reconstruction {
+        canvas: &mut canvas,
+        scratch: &mut scratch,
+        target,
+        held,
+        mode,
+        split,
+        iterations: span.count,
+        pull: SegmentPull::default(),
+    };
+    let descent = Descent {
+        iterations: span.count,
+        plateau: settings.plateau,
+    };
+    descent.run(scene, &mut adams, &mut objective, |done, loss| {
+        stage.iteration(span.start + done, span.total, Some(loss))
+    })?;
+    let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
+    Ok([initial, after])
+}
+
+/// The reconstruction loss with the kept terms, on sets 0 (albedo) and 1 (illumination).
+struct Reconstruction<'a> {
+    canvas: &'a mut Canvas,
+    scratch: &'a mut Scratch,
+    target: &'a Image,
+    held: Option<Held<'a>>,
+    mode: ResolvedMode,
+    split: SplitPlan,
+    /// Iterations of this part, for the split plan.
+    iterations: u32,
+    /// The illumination layer's pull: only it splits (see `super::segments`).
+    pull: SegmentPull,
+}
+
+impl Objective<Scene> for Reconstruction<'_> {
+    fn loss(&mut self, scene: &Scene, grads: &mut [Vec<PathGrad>]) -> f32 {
+        let (albedo, illumination) = grads.split_at_mut(1);
+        let (grads_a, grads_i) = (&mut albedo[0], &mut illumination[0]);
+        let mut loss = reconstruction_loss(
+            self.canvas,
+            scene,
+            self.target,
+            self.scratch,
+            Some((&mut *grads_a, &mut *grads_i)),
+        );
+        if let Some(held) = &self.held {
+            loss += held.add_term(self.canvas, LayerKind::Albedo, &scene.albedo.paths, grads_a);
+            loss += held.add_term(self.canvas, LayerKind::Shade, &scene.shade.paths, grads_i);
+        }
+        loss
+    }
+
+    fn hold(&self, set: usize, grads: &mut [PathGrad]) {
+        if set == 0 {
+            hold_albedo(grads, self.mode);
+        }
+    }
+
+    fn stepped(
+        &mut self,
+        scene: &mut Scene,
+        adams: &mut [Adam],
+        grads: &[Vec<PathGrad>],
+        done: u32,
+    ) -> Option<f32> {
+        // Once the scene holds its target no split is due, and the pull is not needed.
+        let segments = scene.segment_count();
+        if segments < self.split.target {
+            self.pull.add(&scene.shade.paths, &grads[1]);
+        }
+        let due = self.split.due(done, self.iterations, segments);
+        if due > 0 {
+            SplitLayer {
+                paths: &mut scene.shade.paths,
+                pull: &mut self.pull,
+                adam: &mut adams[1],
+            }
+            .split_most_pulled(due);
+        }
+        None
+    }
+}
