@@ -2,6 +2,9 @@
 //! plateau test ([`Plateau`]), the stage's holds on the gradient, one Adam step per trained path
 //! set, the stage's own work after the step, and a progress report.
 //!
+//! The loop owns nothing but the gradients and the plateau test; the canvas it renders on is
+//! the caller's, lent to the objective at each call.
+//!
 //! A stage configures it: what is optimised (a [`Trainable`]: the scene's layers, or the
 //! refinement's new paths, with one [`Adam`] per set, i.e. the learning rates and bounds), the
 //! loss and holds (an [`Objective`]), and the schedule and stop ([`Descent`]). The coarse-to-fine
@@ -9,6 +12,7 @@
 
 use super::coarse::{Plateau, PlateauSettings};
 use super::params::Error;
+use super::stage::Canvas;
 use crate::optim::{Adam, reset_grads};
 use crate::render::PathGrad;
 use crate::scene::{LayerKind, Path, Scene};
@@ -46,11 +50,11 @@ impl Trainable for [Path] {
 pub(crate) trait Objective<M: Trainable + ?Sized> {
     /// The loss at the model's current values. `grads` (one per set, zeroed) may receive the
     /// gradient here already, when computing it with the loss costs less than apart.
-    fn loss(&mut self, model: &M, grads: &mut [Vec<PathGrad>]) -> f32;
+    fn loss(&mut self, canvas: &mut Canvas, model: &M, grads: &mut [Vec<PathGrad>]) -> f32;
 
     /// Adds the gradient of the last [`Objective::loss`] into `grads` if that did not: called
     /// only when the loop goes on to a step.
-    fn gradient(&mut self, _model: &M, _grads: &mut [Vec<PathGrad>]) {}
+    fn gradient(&mut self, _canvas: &mut Canvas, _model: &M, _grads: &mut [Vec<PathGrad>]) {}
 
     /// Zeroes what set `set` must not change, before its step.
     fn hold(&self, _set: usize, _grads: &mut [PathGrad]) {}
@@ -59,6 +63,7 @@ pub(crate) trait Objective<M: Trainable + ?Sized> {
     /// iteration when it is not the one before the step.
     fn stepped(
         &mut self,
+        _canvas: &mut Canvas,
         _model: &mut M,
         _adams: &mut [Adam],
         _grads: &[Vec<PathGrad>],
@@ -81,6 +86,7 @@ impl Descent {
     /// iterations done and the iteration's loss after each step; an error from it ends the loop.
     pub fn run<M: Trainable + ?Sized>(
         &self,
+        canvas: &mut Canvas,
         model: &mut M,
         adams: &mut [Adam],
         objective: &mut impl Objective<M>,
@@ -92,16 +98,16 @@ impl Descent {
             for (set, grads) in grads.iter_mut().enumerate() {
                 reset_grads(grads, model.paths(set));
             }
-            let loss = objective.loss(model, &mut grads);
+            let loss = objective.loss(canvas, model, &mut grads);
             if plateau.stop_after(loss) {
                 break;
             }
-            objective.gradient(model, &mut grads);
+            objective.gradient(canvas, model, &mut grads);
             for (set, (adam, grads)) in adams.iter_mut().zip(&mut grads).enumerate() {
                 objective.hold(set, grads);
                 adam.step(model.paths_mut(set), grads);
             }
-            let reported = objective.stepped(model, adams, &grads, it + 1);
+            let reported = objective.stepped(canvas, model, adams, &grads, it + 1);
             report(it + 1, reported.unwrap_or(loss))?;
         }
         Ok(())

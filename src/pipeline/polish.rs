@@ -114,7 +114,6 @@ pub(crate) fn polish(
         )
     });
     let mut objective = Joint {
-        canvas: &mut canvas,
         target: (target, loss_of),
         model,
         d_layers: Default::default(),
@@ -125,9 +124,13 @@ pub(crate) fn polish(
         iterations: span.count,
         plateau: settings.plateau,
     };
-    descent.run(scene, &mut adams, &mut objective, |done, loss| {
-        stage.iteration(span.start + done, span.total, Some(loss))
-    })?;
+    descent.run(
+        &mut canvas,
+        scene,
+        &mut adams,
+        &mut objective,
+        |done, loss| stage.iteration(span.start + done, span.total, Some(loss)),
+    )?;
     let Joint { model, loss, .. } = objective;
     if !span.ends_early() {
         stage.preview("composite", &model.composite);
@@ -141,7 +144,6 @@ pub(crate) fn polish(
 /// The SVG model's loss on all three layers (sets 0, 1, 2), with the kept terms in the
 /// gradient only. Each step's render gives the next iteration's loss.
 struct Joint<'a> {
-    canvas: &'a mut Canvas,
     target: (&'a Image, &'a PolishLoss),
     model: SvgModel,
     d_layers: [Image; 3],
@@ -151,11 +153,11 @@ struct Joint<'a> {
 }
 
 impl Objective<Scene> for Joint<'_> {
-    fn loss(&mut self, _scene: &Scene, _grads: &mut [Vec<PathGrad>]) -> f32 {
+    fn loss(&mut self, _: &mut Canvas, _: &Scene, _: &mut [Vec<PathGrad>]) -> f32 {
         self.loss
     }
 
-    fn gradient(&mut self, scene: &Scene, grads: &mut [Vec<PathGrad>]) {
+    fn gradient(&mut self, canvas: &mut Canvas, scene: &Scene, grads: &mut [Vec<PathGrad>]) {
         let SvgModel {
             layers,
             d_composite,
@@ -173,11 +175,11 @@ impl Objective<Scene> for Joint<'_> {
         );
         for (k, (kind, grads)) in LayerKind::ALL.into_iter().zip(grads).enumerate() {
             let paths = &scene.layer(kind).paths;
-            self.canvas
+            canvas
                 .raster
                 .backward(paths, kind.base(), &self.d_layers[k], grads);
             if let Some(held) = &self.held {
-                held.add_term(self.canvas, kind, paths, grads);
+                held.add_term(canvas, kind, paths, grads);
             }
         }
     }
@@ -190,12 +192,13 @@ impl Objective<Scene> for Joint<'_> {
 
     fn stepped(
         &mut self,
+        canvas: &mut Canvas,
         scene: &mut Scene,
         _adams: &mut [Adam],
         _grads: &[Vec<PathGrad>],
         _done: u32,
     ) -> Option<f32> {
-        self.loss = self.model.render(self.canvas, scene, self.target);
+        self.loss = self.model.render(canvas, scene, self.target);
         Some(self.loss)
     }
 }

@@ -7,7 +7,7 @@ use super::keep::{Held, KeepRun};
 use super::params::{Error, ResolvedMode};
 use super::segments::{SegmentPull, SplitLayer, SplitPlan};
 use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo};
-use super::structure::{Scratch, StructureSettings, layer_adams, reconstruction_loss};
+use super::structure::{Scratch, StructureSettings, descend_two_layers, reconstruction_loss};
 use crate::optim::Adam;
 use crate::render::{Image, PathGrad};
 use crate::scene::{LayerKind, Scene};
@@ -39,37 +39,34 @@ pub(crate) fn optimise_reconstruction(
         mode,
         split,
     } = *run;
-    let (w, h) = (target.width, target.height);
-    let mut canvas = Canvas::new(w, h);
-    let mut scratch = Scratch::default();
-    let initial = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
-    let mut adams = layer_adams(settings, w, h);
-    let held = keep.map(|k| k.held(&mut canvas, scene, &[LayerKind::Shade], settings));
-    let mut objective = Reconstruction {
-        canvas: &mut canvas,
-        scratch: &mut scratch,
-        target,
-        held,
-        mode,
-        split,
-        iterations: span.count,
-        pull: SegmentPull::default(),
-    };
     let descent = Descent {
         iterations: span.count,
         plateau: settings.plateau,
     };
-    descent.run(scene, &mut adams, &mut objective, |done, loss| {
-        stage.iteration(span.start + done, span.total, Some(loss))
-    })?;
-    let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
-    Ok([initial, after])
+    let reconstruction = |canvas: &mut Canvas, scene: &Scene| {
+        Ok(Reconstruction {
+            scratch: Scratch::default(),
+            target,
+            held: keep.map(|k| k.held(canvas, scene, &[LayerKind::Shade], settings)),
+            mode,
+            split,
+            iterations: span.count,
+            pull: SegmentPull::default(),
+        })
+    };
+    descend_two_layers(
+        scene,
+        target,
+        settings,
+        &descent,
+        reconstruction,
+        |done, loss| stage.iteration(span.start + done, span.total, Some(loss)),
+    )
 }
 
 /// The reconstruction loss with the kept terms, on sets 0 (albedo) and 1 (illumination).
 struct Reconstruction<'a> {
-    canvas: &'a mut Canvas,
-    scratch: &'a mut Scratch,
+    scratch: Scratch,
     target: &'a Image,
     held: Option<Held<'a>>,
     mode: ResolvedMode,
@@ -81,19 +78,19 @@ struct Reconstruction<'a> {
 }
 
 impl Objective<Scene> for Reconstruction<'_> {
-    fn loss(&mut self, scene: &Scene, grads: &mut [Vec<PathGrad>]) -> f32 {
+    fn loss(&mut self, canvas: &mut Canvas, scene: &Scene, grads: &mut [Vec<PathGrad>]) -> f32 {
         let (albedo, illumination) = grads.split_at_mut(1);
         let (grads_a, grads_i) = (&mut albedo[0], &mut illumination[0]);
         let mut loss = reconstruction_loss(
-            self.canvas,
+            canvas,
             scene,
             self.target,
-            self.scratch,
+            &mut self.scratch,
             Some((&mut *grads_a, &mut *grads_i)),
         );
         if let Some(held) = &self.held {
-            loss += held.add_term(self.canvas, LayerKind::Albedo, &scene.albedo.paths, grads_a);
-            loss += held.add_term(self.canvas, LayerKind::Shade, &scene.shade.paths, grads_i);
+            loss += held.add_term(canvas, LayerKind::Albedo, &scene.albedo.paths, grads_a);
+            loss += held.add_term(canvas, LayerKind::Shade, &scene.shade.paths, grads_i);
         }
         loss
     }
@@ -106,6 +103,7 @@ impl Objective<Scene> for Reconstruction<'_> {
 
     fn stepped(
         &mut self,
+        _canvas: &mut Canvas,
         scene: &mut Scene,
         adams: &mut [Adam],
         grads: &[Vec<PathGrad>],

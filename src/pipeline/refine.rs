@@ -272,7 +272,6 @@ fn train(
 ) -> Result<(), Error> {
     let mut adams = [Adam::new(schedule.settings.adam, schedule.bounds)];
     let mut objective = NewPaths {
-        canvas,
         frame,
         scratch: Scratch::default(),
     };
@@ -280,19 +279,18 @@ fn train(
         iterations: schedule.iterations,
         plateau: schedule.settings.plateau,
     };
-    descent.run(paths, &mut adams, &mut objective, report)
+    descent.run(canvas, paths, &mut adams, &mut objective, report)
 }
 
 /// The image loss of new paths painted in their frame (`a`: the layer, `c`: the composite),
 /// with their containment term.
 struct NewPaths<'a> {
-    canvas: &'a mut Canvas,
     frame: &'a Frame<'a>,
     scratch: Scratch,
 }
 
 impl Objective<[Path]> for NewPaths<'_> {
-    fn loss(&mut self, paths: &[Path], grads: &mut [Vec<PathGrad>]) -> f32 {
+    fn loss(&mut self, canvas: &mut Canvas, paths: &[Path], grads: &mut [Vec<PathGrad>]) -> f32 {
         let Frame {
             backdrop,
             factor,
@@ -300,13 +298,13 @@ impl Objective<[Path]> for NewPaths<'_> {
             containment,
         } = *self.frame;
         let (grads, s) = (&mut grads[0], &mut self.scratch);
-        self.canvas.render_over(paths, backdrop, &mut s.a);
+        canvas.render_over(paths, backdrop, &mut s.a);
         product(&s.a, factor, &mut s.c);
         let mut loss = mse(&s.c, target, &mut s.d_c);
         product_backward(&s.a, factor, &s.d_c, &mut s.d_a, &mut s.d_b);
-        self.canvas.backward_over(paths, backdrop, &s.d_a, grads);
+        canvas.backward_over(paths, backdrop, &s.d_a, grads);
         if let Some(c) = containment {
-            loss += containment_term(self.canvas, paths, c.parents, c.keep, grads);
+            loss += containment_term(canvas, paths, c.parents, c.keep, grads);
         }
         loss
     }

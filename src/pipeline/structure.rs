@@ -106,38 +106,58 @@ pub(crate) fn optimise_structure(
         seed,
     } = *run;
     let (w, h) = (target.width, target.height);
-    let mut canvas = Canvas::new(w, h);
-    let mut scratch = Scratch::default();
-    let initial = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
-    let mut adams = layer_adams(settings, w, h);
-    let prepared = prepare_groups(scene, groups, w, h, seed)?;
-    let mut objective = Structure {
-        canvas: &mut canvas,
-        scratch: &mut scratch,
-        groups: &prepared,
-        settings,
-    };
     let descent = Descent {
         iterations,
         plateau: PlateauSettings::never(),
     };
-    descent.run(scene, &mut adams, &mut objective, |done, loss| {
-        stage.iteration(done, iterations, Some(loss))
-    })?;
+    let structure = |_: &mut Canvas, scene: &Scene| {
+        Ok(Structure {
+            scratch: Scratch::default(),
+            groups: prepare_groups(scene, groups, w, h, seed)?,
+            settings,
+        })
+    };
+    descend_two_layers(
+        scene,
+        target,
+        settings,
+        &descent,
+        structure,
+        |done, loss| stage.iteration(done, iterations, Some(loss)),
+    )
+}
+
+/// Runs `descent` on the albedo and illumination layers, one Adam each ([`layer_adams`]), and
+/// returns the two-layer loss ‖I − R(A)·R(I)‖² before and after. The objective is made once
+/// the loss before is known.
+pub(crate) fn descend_two_layers<O: Objective<Scene>>(
+    scene: &mut Scene,
+    target: &Image,
+    settings: &StructureSettings,
+    descent: &Descent,
+    objective: impl FnOnce(&mut Canvas, &Scene) -> Result<O, Error>,
+    report: impl FnMut(u32, f32) -> Result<(), Error>,
+) -> Result<[f32; 2], Error> {
+    let (w, h) = (target.width, target.height);
+    let mut canvas = Canvas::new(w, h);
+    let mut scratch = Scratch::default();
+    let initial = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
+    let mut adams = layer_adams(settings, w, h);
+    let mut objective = objective(&mut canvas, scene)?;
+    descent.run(&mut canvas, scene, &mut adams, &mut objective, report)?;
     let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
     Ok([initial, after])
 }
 
 /// The structure loss of every mask group, on sets 0 (albedo) and 1 (illumination).
 struct Structure<'a> {
-    canvas: &'a mut Canvas,
-    scratch: &'a mut Scratch,
-    groups: &'a [PreparedGroup],
+    scratch: Scratch,
+    groups: Vec<PreparedGroup>,
     settings: &'a StructureSettings,
 }
 
 impl Objective<Scene> for Structure<'_> {
-    fn loss(&mut self, scene: &Scene, grads: &mut [Vec<PathGrad>]) -> f32 {
+    fn loss(&mut self, canvas: &mut Canvas, scene: &Scene, grads: &mut [Vec<PathGrad>]) -> f32 {
         let mut loss = 0.0;
         for (kind, grads) in [LayerKind::Albedo, LayerKind::Shade].into_iter().zip(grads) {
             // A group holding only the albedo base trains nothing (its geometry and opacity
@@ -147,13 +167,13 @@ impl Objective<Scene> for Structure<'_> {
             };
             for group in self.groups.iter().filter(trainable) {
                 loss += structure_loss(
-                    self.canvas,
+                    canvas,
                     &scene.layer(kind).paths,
                     group,
                     self.settings,
                     1.0,
                     grads,
-                    self.scratch,
+                    &mut self.scratch,
                 );
             }
         }
@@ -177,7 +197,7 @@ fn hold_colours(grads: &mut [PathGrad]) {
 }
 
 /// The albedo and illumination Adams (colours within [0, 1] and [0, illumination cap]).
-pub(crate) fn layer_adams(settings: &StructureSettings, w: usize, h: usize) -> [Adam; 2] {
+fn layer_adams(settings: &StructureSettings, w: usize, h: usize) -> [Adam; 2] {
     [
         Adam::new(settings.adam, Bounds::canvas(w, h, 1.0)),
         Adam::new(
