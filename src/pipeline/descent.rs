@@ -2,13 +2,13 @@
 //! plateau test ([`Plateau`]), the stage's holds on the gradient, one Adam step per trained path
 //! set, the stage's own work after the step, and a progress report.
 //!
-//! The loop owns nothing but the gradients and the plateau test; the canvas it renders on is
-//! the caller's, lent to the objective at each call.
-//!
 //! A stage configures it: what is optimised (a [`Trainable`]: the scene's layers, or the
 //! refinement's new paths, with one [`Adam`] per set, i.e. the learning rates and bounds), the
 //! loss and holds (an [`Objective`]), and the schedule and stop ([`Descent`]). The coarse-to-fine
 //! split of a stage is the caller's: it runs the loop once per part.
+//!
+//! The loop owns nothing but the gradients and the plateau test; the canvas it renders on is
+//! the caller's, lent to the objective at each call.
 
 use super::coarse::{Plateau, PlateauSettings};
 use super::params::Error;
@@ -111,5 +111,76 @@ impl Descent {
             report(it + 1, reported.unwrap_or(loss))?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optim::{AdamSettings, Bounds};
+
+    /// Σ (colour − 0.25)² over one path's channels, its gradient given with the loss.
+    struct ToGrey;
+
+    impl Objective<[Path]> for ToGrey {
+        fn loss(&mut self, _: &mut Canvas, paths: &[Path], grads: &mut [Vec<PathGrad>]) -> f32 {
+            let color = paths[0].color;
+            grads[0][0].color = color.map(|c| 2.0 * (c - 0.25));
+            color.iter().map(|c| (c - 0.25) * (c - 0.25)).sum()
+        }
+    }
+
+    #[test]
+    fn the_loop_descends_reports_each_step_and_stops_on_a_plateau() {
+        let mut paths = [Path::rect(0.0, 0.0, 4.0, 4.0, [1.0, 0.0, 0.5], 1.0)];
+        let adam = || {
+            [Adam::new(
+                AdamSettings::default(),
+                Bounds::canvas(8, 8, 1.0),
+            )]
+        };
+        let mut canvas = Canvas::new(8, 8);
+        let mut reported = Vec::new();
+        let descent = Descent {
+            iterations: 2000,
+            plateau: PlateauSettings::default(),
+        };
+        let mut report = |done, loss| {
+            reported.push((done, loss));
+            Ok(())
+        };
+        descent
+            .run(
+                &mut canvas,
+                &mut paths[..],
+                &mut adam(),
+                &mut ToGrey,
+                &mut report,
+            )
+            .unwrap();
+        let steps = reported.len() as u32;
+        assert!(steps < 2000, "stopped on the plateau");
+        assert!(reported.iter().map(|r| r.0).eq(1..=steps));
+        let color = paths[0].color;
+        assert!(color.iter().all(|c| (c - 0.25).abs() < 0.05), "{color:?}");
+
+        let never = Descent {
+            iterations: 50,
+            plateau: PlateauSettings::never(),
+        };
+        let mut count = 0;
+        never
+            .run(
+                &mut canvas,
+                &mut paths[..],
+                &mut adam(),
+                &mut ToGrey,
+                |_, _| {
+                    count += 1;
+                    Ok(())
+                },
+            )
+            .unwrap();
+        assert_eq!(count, 50);
     }
 }

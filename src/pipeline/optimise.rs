@@ -4,8 +4,9 @@
 //!
 //! The structure stage, the first part of the reconstruction, the first refinement rounds and the
 //! first part of the polish run on a half-size copy of the scene (see [`super::coarse`]);
-//! previews are made at full size. The reconstruction splits segments up to the segment budget
-//! ([`super::segments`]).
+//! previews are made at full size ([`Optimisation::coarse_then_fine`]). The reconstruction splits
+//! segments up to the segment budget ([`super::segments`]). Every stage's iterations are
+//! [`super::descent::Descent`]'s loop.
 
 use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask};
 use super::init::InitState;

@@ -43,9 +43,9 @@ pub(crate) fn optimise_reconstruction(
         iterations: span.count,
         plateau: settings.plateau,
     };
-    let reconstruction = |canvas: &mut Canvas, scene: &Scene| {
+    let reconstruction = |canvas: &mut Canvas, scene: &Scene, scratch| {
         Ok(Reconstruction {
-            scratch: Scratch::default(),
+            scratch,
             target,
             held: keep.map(|k| k.held(canvas, scene, &[LayerKind::Shade], settings)),
             mode,
@@ -75,6 +75,12 @@ struct Reconstruction<'a> {
     iterations: u32,
     /// The illumination layer's pull: only it splits (see `super::segments`).
     pull: SegmentPull,
+}
+
+impl AsMut<Scratch> for Reconstruction<'_> {
+    fn as_mut(&mut self) -> &mut Scratch {
+        &mut self.scratch
+    }
 }
 
 impl Objective<Scene> for Reconstruction<'_> {

@@ -110,9 +110,9 @@ pub(crate) fn optimise_structure(
         iterations,
         plateau: PlateauSettings::never(),
     };
-    let structure = |_: &mut Canvas, scene: &Scene| {
+    let structure = |_: &mut Canvas, scene: &Scene, scratch| {
         Ok(Structure {
-            scratch: Scratch::default(),
+            scratch,
             groups: prepare_groups(scene, groups, w, h, seed)?,
             settings,
         })
@@ -129,13 +129,13 @@ pub(crate) fn optimise_structure(
 
 /// Runs `descent` on the albedo and illumination layers, one Adam each ([`layer_adams`]), and
 /// returns the two-layer loss ‖I − R(A)·R(I)‖² before and after. The objective is made once
-/// the loss before is known.
-pub(crate) fn descend_two_layers<O: Objective<Scene>>(
+/// the loss before is known, and takes over its buffers.
+pub(crate) fn descend_two_layers<O: Objective<Scene> + AsMut<Scratch>>(
     scene: &mut Scene,
     target: &Image,
     settings: &StructureSettings,
     descent: &Descent,
-    objective: impl FnOnce(&mut Canvas, &Scene) -> Result<O, Error>,
+    objective: impl FnOnce(&mut Canvas, &Scene, Scratch) -> Result<O, Error>,
     report: impl FnMut(u32, f32) -> Result<(), Error>,
 ) -> Result<[f32; 2], Error> {
     let (w, h) = (target.width, target.height);
@@ -143,9 +143,9 @@ pub(crate) fn descend_two_layers<O: Objective<Scene>>(
     let mut scratch = Scratch::default();
     let initial = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
     let mut adams = layer_adams(settings, w, h);
-    let mut objective = objective(&mut canvas, scene)?;
+    let mut objective = objective(&mut canvas, scene, scratch)?;
     descent.run(&mut canvas, scene, &mut adams, &mut objective, report)?;
-    let after = reconstruction_loss(&mut canvas, scene, target, &mut scratch, None);
+    let after = reconstruction_loss(&mut canvas, scene, target, objective.as_mut(), None);
     Ok([initial, after])
 }
 
@@ -154,6 +154,12 @@ struct Structure<'a> {
     scratch: Scratch,
     groups: Vec<PreparedGroup>,
     settings: &'a StructureSettings,
+}
+
+impl AsMut<Scratch> for Structure<'_> {
+    fn as_mut(&mut self) -> &mut Scratch {
+        &mut self.scratch
+    }
 }
 
 impl Objective<Scene> for Structure<'_> {
