@@ -9,10 +9,13 @@
 
 pub(crate) mod coarse;
 pub(crate) mod decompose;
+pub(crate) mod descent;
 pub(crate) mod init;
+pub(crate) mod keep;
 pub(crate) mod optimise;
 pub mod params;
 pub(crate) mod polish;
+pub(crate) mod reconstruct;
 pub(crate) mod refine;
 pub(crate) mod regions;
 pub(crate) mod segments;

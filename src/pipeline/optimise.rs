@@ -4,20 +4,22 @@
 //!
 //! The structure stage, the first part of the reconstruction, the first refinement rounds and the
 //! first part of the polish run on a half-size copy of the scene (see [`super::coarse`]);
-//! previews are made at full size. The reconstruction splits segments up to the segment budget
-//! ([`super::segments`]).
+//! previews are made at full size ([`Optimisation::coarse_then_fine`]). The reconstruction splits
+//! segments up to the segment budget ([`super::segments`]). Every stage's iterations are
+//! [`super::descent::Descent`]'s loop.
 
 use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask};
 use super::init::InitState;
+use super::keep::{Keep, KeepRun, KeepSettings};
 use super::params::{Error, Params, ResolvedMode};
 use super::polish::{self, PolishLoss, PolishSettings};
+use super::reconstruct::{ReconstructionRun, optimise_reconstruction};
 use super::refine::{Growth, RefinePlan, RefineSettings, refine};
 use super::segments::SplitPlan;
 use super::split::{SplitReport, split_layers};
 use super::stage::{Canvas, IterationSpan, StageKind, StageRun};
 use super::structure::{
-    Keep, KeepRun, KeepSettings, MaskGroup, ReconstructionRun, Scratch, StructureRun,
-    StructureSettings, optimise_reconstruction, optimise_structure, preview_two_layers,
+    MaskGroup, Scratch, StructureRun, StructureSettings, optimise_structure, preview_two_layers,
     reconstruction_loss,
 };
 use crate::render::Image;
@@ -165,6 +167,50 @@ impl<'a> Optimisation<'a> {
         Ok(Some(out))
     }
 
+    /// How many of `asked` iterations (or rounds) run coarse: none when the phase does not apply.
+    fn coarse_count(&self, asked: u32) -> u32 {
+        if self.small_target.is_some() {
+            asked
+        } else {
+            0
+        }
+    }
+
+    /// Runs a stage of `total` iterations (or rounds) in two parts: the first `coarse_count` on
+    /// the half-size copy (none when the coarse phase does not apply), the rest at full size.
+    /// `part` runs one part with the kept terms at its size; returns the fine part's result.
+    fn coarse_then_fine<T>(
+        &mut self,
+        total: u32,
+        coarse_count: u32,
+        mut part: impl FnMut(&mut Scene, &Image, Part) -> Result<T, Error>,
+    ) -> Result<T, Error> {
+        let coarse_count = self.coarse_count(coarse_count);
+        let keep = self.keep.take();
+        let (full, half) = keep_runs(&keep, self.params.seed);
+        let span = |start: u32, count: u32| IterationSpan {
+            start,
+            count,
+            total,
+        };
+        let coarse = self.coarse(|small, small_target| {
+            let coarse = Part {
+                span: span(0, coarse_count),
+                keep: half.as_ref(),
+                coarse: true,
+            };
+            part(small, small_target, coarse)
+        });
+        let fine = Part {
+            span: span(coarse_count, total - coarse_count),
+            keep: full.as_ref(),
+            coarse: false,
+        };
+        let fine = coarse.and_then(|_| part(&mut self.scene, &self.target, fine));
+        self.keep = keep;
+        fine
+    }
+
     fn record(&mut self, stage: &StageRun, before: f32, after: f32) {
         self.report.losses.push(StageLoss {
             stage: stage.name(),
@@ -205,36 +251,20 @@ impl<'a> Optimisation<'a> {
 
     fn reconstruct(&mut self, stage: &StageRun) -> Result<(), Error> {
         let total = self.params.iterations.reconstruction;
-        let coarse_count = if self.small_target.is_some() {
-            ((total as f32 * self.settings.coarse.reconstruction_share).round() as u32).min(total)
-        } else {
-            0
-        };
+        let coarse_count =
+            ((total as f32 * self.settings.coarse.reconstruction_share).round() as u32).min(total);
         let split = SplitPlan::new(self.params.paths as usize, self.scene.path_count());
-        let keep = self.keep.take();
-        let (full, half) = keep_runs(&keep, self.params.seed);
-        let run = |start: u32, count: u32, keep| ReconstructionRun {
-            span: IterationSpan {
-                start,
-                count,
-                total,
-            },
-            settings: &self.settings.structure,
-            keep,
-            mode: self.mode,
-            split,
-        };
-        let (coarse_run, fine_run) = (
-            run(0, coarse_count, half.as_ref()),
-            run(coarse_count, total - coarse_count, full.as_ref()),
-        );
-        let coarse = self.coarse(|small, small_target| {
-            optimise_reconstruction(small, small_target, &coarse_run, stage)
-        });
-        let fine = coarse
-            .and_then(|_| optimise_reconstruction(&mut self.scene, &self.target, &fine_run, stage));
-        self.keep = keep;
-        fine?;
+        let (settings, mode) = (&self.settings.structure, self.mode);
+        self.coarse_then_fine(total, coarse_count, |scene, target, part| {
+            let run = ReconstructionRun {
+                span: part.span,
+                settings,
+                keep: part.keep,
+                mode,
+                split,
+            };
+            optimise_reconstruction(scene, target, &run, stage)
+        })?;
         let after = if total > 0 {
             preview_two_layers(&mut self.canvas, &self.scene, &self.target, stage)
         } else {
@@ -263,43 +293,32 @@ impl<'a> Optimisation<'a> {
                 color_max: self.settings.structure.illumination_cap,
             },
         };
-        let coarse_rounds = if self.small_target.is_some() {
-            it.refine_rounds
-                .saturating_sub(self.settings.coarse.fine_rounds)
-        } else {
-            0
-        };
+        let coarse_rounds = it
+            .refine_rounds
+            .saturating_sub(self.settings.coarse.fine_rounds);
         // Early stopping in the coarse rounds only (see `super::coarse`).
         let fine_settings = RefineSettings {
             plateau: PlateauSettings::never(),
             ..self.settings.refine.clone()
         };
-        let keep = self.keep.take();
-        let (full, half) = keep_runs(&keep, self.params.seed);
-        let plan = |start: u32, count: u32, settings, keep| RefinePlan {
-            growth,
-            keep,
-            budget: self.params.paths as usize,
-            rounds: IterationSpan {
-                start,
-                count,
-                total: it.refine_rounds,
-            },
-            iterations: it.refine,
-            settings,
-            seed: self.params.seed,
-        };
-        let coarse_plan = plan(0, coarse_rounds, &self.settings.refine, half);
-        let coarse =
-            self.coarse(|small, small_target| refine(small, small_target, &coarse_plan, stage));
-        let fine_plan = plan(
-            coarse_rounds,
-            it.refine_rounds - coarse_rounds,
-            &fine_settings,
-            full,
-        );
-        let fine = coarse.and_then(|_| refine(&mut self.scene, &self.target, &fine_plan, stage));
-        self.keep = keep;
+        let (budget, seed) = (self.params.paths as usize, self.params.seed);
+        let coarse_settings = &self.settings.refine;
+        let fine = self.coarse_then_fine(it.refine_rounds, coarse_rounds, |scene, target, part| {
+            let plan = RefinePlan {
+                growth,
+                keep: part.keep,
+                budget,
+                rounds: part.span,
+                iterations: it.refine,
+                settings: if part.coarse {
+                    coarse_settings
+                } else {
+                    &fine_settings
+                },
+                seed,
+            };
+            refine(scene, target, &plan, stage)
+        });
         let [_, after] = fine?;
         self.record(stage, self.loss, after);
         Ok(())
@@ -315,11 +334,9 @@ impl<'a> Optimisation<'a> {
 
     fn polish(&mut self, stage: &StageRun) -> Result<(), Error> {
         let total = self.params.iterations.polish;
-        let coarse_count = if self.small_target.is_some() {
-            ((total as f32 * self.settings.coarse.polish_share).round() as u32).min(total)
-        } else {
-            0
-        };
+        let coarse_count = self.coarse_count(
+            ((total as f32 * self.settings.coarse.polish_share).round() as u32).min(total),
+        );
         let (settings, structure) = (&self.settings.polish, &self.settings.structure);
         let weight = settings.similarity_weight(self.target.width * self.target.height);
         let full_loss = PolishLoss::new(&self.target, weight);
@@ -329,38 +346,30 @@ impl<'a> Optimisation<'a> {
             polish::into_range(&mut self.scene);
             polish::model_loss(&mut self.canvas, &self.scene, &self.target, &full_loss)
         });
-        let keep = self.keep.take();
-        let (full, half) = keep_runs(&keep, self.params.seed);
-        let span = |start: u32, count: u32| IterationSpan {
-            start,
-            count,
-            total,
-        };
-        let coarse = self.coarse(|small, small_target| {
-            polish::polish(
-                small,
-                (small_target, &PolishLoss::new(small_target, weight)),
-                span(0, coarse_count),
-                settings,
-                half.as_ref().map(|r| (r, structure)),
-                stage,
-            )
+        let fine = self.coarse_then_fine(total, coarse_count, |scene, target, part| {
+            let coarse_loss;
+            let loss = if part.coarse {
+                coarse_loss = PolishLoss::new(target, weight);
+                &coarse_loss
+            } else {
+                &full_loss
+            };
+            let keep = part.keep.map(|r| (r, structure));
+            polish::polish(scene, (target, loss), part.span, settings, keep, stage)
         });
-        let fine = coarse.and_then(|_| {
-            polish::polish(
-                &mut self.scene,
-                (&self.target, &full_loss),
-                span(coarse_count, total - coarse_count),
-                settings,
-                full.as_ref().map(|r| (r, structure)),
-                stage,
-            )
-        });
-        self.keep = keep;
         let [initial, after] = fine?;
         self.record(stage, before.unwrap_or(initial), after);
         Ok(())
     }
+}
+
+/// One part of a stage split coarse to fine.
+struct Part<'k> {
+    span: IterationSpan,
+    /// The kept terms at the part's size.
+    keep: Option<&'k KeepRun<'k>>,
+    /// Whether the part runs on the half-size copy.
+    coarse: bool,
 }
 
 /// The kept terms at full and half size, for a stage that runs its coarse part on the halved

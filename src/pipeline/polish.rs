@@ -3,15 +3,17 @@
 //! file is optimal for what is displayed rather than for the unclamped two-layer model. Its loss
 //! adds a gradient-similarity term to the MSE ([`PolishSettings::gradient_similarity`]).
 
-use super::coarse::{Plateau, PlateauSettings};
+use super::coarse::PlateauSettings;
+use super::descent::{Descent, Objective};
+use super::keep::{Held, KeepRun};
 use super::params::Error;
 use super::stage::{Canvas, IterationSpan, StageRun, hold_albedo_base};
-use super::structure::{KeepRun, StructureSettings, albedo_term, containment_term};
+use super::structure::StructureSettings;
 use crate::optim::loss::mse;
-use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
+use crate::optim::{Adam, AdamSettings, Bounds};
 use crate::perceptual::GradientSimilarity;
-use crate::render::Image;
 use crate::render::composite::{svg_model, svg_model_backward};
+use crate::render::{Image, PathGrad};
 use crate::scene::{LayerKind, Scene};
 
 /// Settings of the polish.
@@ -80,16 +82,7 @@ pub(crate) fn model_loss(
     target: &Image,
     loss: &PolishLoss,
 ) -> f32 {
-    let mut layers = [Image::default(), Image::default(), Image::default()];
-    let (mut composite, mut d_composite) = (Image::default(), Image::default());
-    render_all(
-        canvas,
-        scene,
-        (target, loss),
-        &mut layers,
-        &mut composite,
-        &mut d_composite,
-    )
+    SvgModel::default().render(canvas, scene, (target, loss))
 }
 
 /// Runs up to the span's iterations of joint steps (from [`into_range`]) and returns the loss of
@@ -110,97 +103,104 @@ pub(crate) fn polish(
         .map(|_| Adam::new(settings.adam, Bounds::canvas(w, h, 1.0)))
         .collect();
     into_range(scene);
-    let mut layers = [Image::default(), Image::default(), Image::default()];
-    let mut d_layers = [Image::default(), Image::default(), Image::default()];
-    let (mut composite, mut d_composite) = (Image::default(), Image::default());
-    let mut grads = Vec::new();
-    let initial = render_all(
-        &mut canvas,
-        scene,
-        (target, loss_of),
-        &mut layers,
-        &mut composite,
-        &mut d_composite,
-    );
-    let held = keep.map(|(k, _)| {
-        (
-            k.keep.albedo_groups(scene, k.seed),
-            [LayerKind::Shade, LayerKind::Light]
-                .map(|kind| k.keep.parents(&mut canvas, &scene.layer(kind).paths)),
-        )
-    });
-    let mut loss = initial;
-    let mut plateau = Plateau::new(settings.plateau);
-    for it in 0..span.count {
-        if plateau.stop_after(loss) {
-            break;
-        }
-        let [d_a, d_s, d_l] = &mut d_layers;
-        svg_model_backward(
-            &layers[0],
-            &layers[1],
-            &layers[2],
-            &d_composite,
-            d_a,
-            d_s,
-            d_l,
-        );
-        for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
-            let paths = &mut scene.layer_mut(kind).paths;
-            reset_grads(&mut grads, paths);
-            canvas
-                .raster
-                .backward(paths, kind.base(), &d_layers[k], &mut grads);
-            if let (Some((k, structure)), Some((groups, parents))) = (keep, &held) {
-                match kind {
-                    LayerKind::Albedo => {
-                        albedo_term(
-                            &mut canvas,
-                            paths,
-                            groups,
-                            structure,
-                            k.keep.albedo_weight,
-                            &mut grads,
-                        );
-                    }
-                    LayerKind::Shade | LayerKind::Light => {
-                        containment_term(
-                            &mut canvas,
-                            paths,
-                            &parents[k_index(kind)],
-                            k.keep,
-                            &mut grads,
-                        );
-                    }
-                }
-            }
-            if kind == LayerKind::Albedo {
-                hold_albedo_base(&mut grads);
-            }
-            adams[k].step(paths, &grads);
-        }
-        loss = render_all(
+    let mut model = SvgModel::default();
+    let initial = model.render(&mut canvas, scene, (target, loss_of));
+    let held = keep.map(|(k, structure)| {
+        k.held(
             &mut canvas,
             scene,
-            (target, loss_of),
-            &mut layers,
-            &mut composite,
-            &mut d_composite,
-        );
-        stage.iteration(span.start + it + 1, span.total, Some(loss))?;
-    }
+            &[LayerKind::Shade, LayerKind::Light],
+            structure,
+        )
+    });
+    let mut objective = Joint {
+        target: (target, loss_of),
+        model,
+        d_layers: Default::default(),
+        loss: initial,
+        held,
+    };
+    let descent = Descent {
+        iterations: span.count,
+        plateau: settings.plateau,
+    };
+    descent.run(
+        &mut canvas,
+        scene,
+        &mut adams,
+        &mut objective,
+        |done, loss| stage.iteration(span.start + done, span.total, Some(loss)),
+    )?;
+    let Joint { model, loss, .. } = objective;
     if !span.ends_early() {
-        stage.preview("composite", &composite);
+        stage.preview("composite", &model.composite);
         for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
-            stage.preview(kind.name(), &layers[k]);
+            stage.preview(kind.name(), &model.layers[k]);
         }
     }
     Ok([initial, loss])
 }
 
-/// Index of an illumination layer's parents in the polish's pair.
-fn k_index(kind: LayerKind) -> usize {
-    usize::from(kind == LayerKind::Light)
+/// The SVG model's loss on all three layers (sets 0, 1, 2), with the kept terms in the
+/// gradient only. Each step's render gives the next iteration's loss.
+struct Joint<'a> {
+    target: (&'a Image, &'a PolishLoss),
+    model: SvgModel,
+    d_layers: [Image; 3],
+    /// The loss of the current values.
+    loss: f32,
+    held: Option<Held<'a>>,
+}
+
+impl Objective<Scene> for Joint<'_> {
+    fn loss(&mut self, _: &mut Canvas, _: &Scene, _: &mut [Vec<PathGrad>]) -> f32 {
+        self.loss
+    }
+
+    fn gradient(&mut self, canvas: &mut Canvas, scene: &Scene, grads: &mut [Vec<PathGrad>]) {
+        let SvgModel {
+            layers,
+            d_composite,
+            ..
+        } = &self.model;
+        let [d_a, d_s, d_l] = &mut self.d_layers;
+        svg_model_backward(
+            &layers[0],
+            &layers[1],
+            &layers[2],
+            d_composite,
+            d_a,
+            d_s,
+            d_l,
+        );
+        for (k, (kind, grads)) in LayerKind::ALL.into_iter().zip(grads).enumerate() {
+            let paths = &scene.layer(kind).paths;
+            canvas
+                .raster
+                .backward(paths, kind.base(), &self.d_layers[k], grads);
+            if let Some(held) = &self.held {
+                held.add_term(canvas, kind, paths, grads);
+            }
+        }
+    }
+
+    fn hold(&self, set: usize, grads: &mut [PathGrad]) {
+        if set == 0 {
+            hold_albedo_base(grads);
+        }
+    }
+
+    fn stepped(
+        &mut self,
+        canvas: &mut Canvas,
+        scene: &mut Scene,
+        _adams: &mut [Adam],
+        _grads: &[Vec<PathGrad>],
+        _done: u32,
+    ) -> Option<f32> {
+        self.loss = self.model.render(canvas, scene, self.target);
+        Some(self.loss)
+    }
 }
 
 /// MSE + weight × (1 − GMSM) against one target, whose gradient magnitudes it computes once.
@@ -228,20 +228,29 @@ impl PolishLoss {
     }
 }
 
-/// Renders the three layers and the SVG composite; returns the loss and writes its gradient.
-fn render_all(
-    canvas: &mut Canvas,
-    scene: &Scene,
-    (target, loss): (&Image, &PolishLoss),
-    layers: &mut [Image; 3],
-    composite: &mut Image,
-    d_composite: &mut Image,
-) -> f32 {
-    for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
-        canvas.render_layer(scene, kind, &mut layers[k]);
+/// The three layers, the SVG composite and its loss gradient, as last rendered.
+#[derive(Default)]
+struct SvgModel {
+    layers: [Image; 3],
+    composite: Image,
+    d_composite: Image,
+}
+
+impl SvgModel {
+    /// Renders the three layers and the SVG composite; returns the loss and writes its gradient.
+    fn render(
+        &mut self,
+        canvas: &mut Canvas,
+        scene: &Scene,
+        (target, loss): (&Image, &PolishLoss),
+    ) -> f32 {
+        for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
+            canvas.render_layer(scene, kind, &mut self.layers[k]);
+        }
+        let [a, s, l] = &self.layers;
+        svg_model(a, s, l, &mut self.composite);
+        loss.of(&self.composite, target, &mut self.d_composite)
     }
-    svg_model(&layers[0], &layers[1], &layers[2], composite);
-    loss.of(composite, target, d_composite)
 }
 
 #[cfg(test)]

@@ -5,16 +5,18 @@
 //! The photo mode refines the illumination layer (`scene.shade`, multiplied onto the fixed
 //! albedo); the simple mode refines the albedo layer itself (the illumination is empty, i.e. 1).
 
-use super::coarse::{Plateau, PlateauSettings};
+use super::coarse::PlateauSettings;
+use super::descent::{Descent, Objective};
+use super::keep::{Keep, KeepRun, containment_term};
 use super::params::Error;
 use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, high_error_regions};
 use super::stage::{Canvas, IterationSpan, StageRun};
-use super::structure::{Keep, KeepRun, containment_term};
+use super::structure::Scratch;
 use crate::optim::loss::mse;
 use crate::optim::rng::Rng;
-use crate::optim::{Adam, AdamSettings, Bounds, reset_grads};
-use crate::render::Image;
+use crate::optim::{Adam, AdamSettings, Bounds};
 use crate::render::composite::{product, product_backward};
+use crate::render::{Image, PathGrad};
 use crate::scene::{LayerKind, Path, Scene};
 
 /// Settings of the refinement.
@@ -72,7 +74,7 @@ pub(crate) struct RefinePlan<'a> {
     pub settings: &'a RefineSettings,
     pub seed: u64,
     /// The albedo regions new paths are held to (photo mode).
-    pub keep: Option<KeepRun<'a>>,
+    pub keep: Option<&'a KeepRun<'a>>,
 }
 
 /// Runs the plan's rounds (each of up to `iterations`, stopping early once the loss has
@@ -266,37 +268,46 @@ fn train(
     paths: &mut [Path],
     frame: &Frame,
     schedule: &Schedule,
-    mut report: impl FnMut(u32, f32) -> Result<(), Error>,
+    report: impl FnMut(u32, f32) -> Result<(), Error>,
 ) -> Result<(), Error> {
-    let Frame {
-        backdrop,
-        factor,
-        target,
-        containment,
-    } = *frame;
-    let mut adam = Adam::new(schedule.settings.adam, schedule.bounds);
-    let mut plateau = Plateau::new(schedule.settings.plateau);
-    let (mut layer, mut composite, mut d_composite) =
-        (Image::default(), Image::default(), Image::default());
-    let (mut d_layer, mut d_factor) = (Image::default(), Image::default());
-    let mut grads = Vec::new();
-    for it in 0..schedule.iterations {
-        canvas.render_over(paths, backdrop, &mut layer);
-        product(&layer, factor, &mut composite);
-        let mut loss = mse(&composite, target, &mut d_composite);
-        product_backward(&layer, factor, &d_composite, &mut d_layer, &mut d_factor);
-        reset_grads(&mut grads, paths);
-        canvas.backward_over(paths, backdrop, &d_layer, &mut grads);
+    let mut adams = [Adam::new(schedule.settings.adam, schedule.bounds)];
+    let mut objective = NewPaths {
+        frame,
+        scratch: Scratch::default(),
+    };
+    let descent = Descent {
+        iterations: schedule.iterations,
+        plateau: schedule.settings.plateau,
+    };
+    descent.run(canvas, paths, &mut adams, &mut objective, report)
+}
+
+/// The image loss of new paths painted in their frame (`a`: the layer, `c`: the composite),
+/// with their containment term.
+struct NewPaths<'a> {
+    frame: &'a Frame<'a>,
+    scratch: Scratch,
+}
+
+impl Objective<[Path]> for NewPaths<'_> {
+    fn loss(&mut self, canvas: &mut Canvas, paths: &[Path], grads: &mut [Vec<PathGrad>]) -> f32 {
+        let Frame {
+            backdrop,
+            factor,
+            target,
+            containment,
+        } = *self.frame;
+        let (grads, s) = (&mut grads[0], &mut self.scratch);
+        canvas.render_over(paths, backdrop, &mut s.a);
+        product(&s.a, factor, &mut s.c);
+        let mut loss = mse(&s.c, target, &mut s.d_c);
+        product_backward(&s.a, factor, &s.d_c, &mut s.d_a, &mut s.d_b);
+        canvas.backward_over(paths, backdrop, &s.d_a, grads);
         if let Some(c) = containment {
-            loss += containment_term(canvas, paths, c.parents, c.keep, &mut grads);
+            loss += containment_term(canvas, paths, c.parents, c.keep, grads);
         }
-        if plateau.stop_after(loss) {
-            break;
-        }
-        adam.step(paths, &grads);
-        report(it + 1, loss)?;
+        loss
     }
-    Ok(())
 }
 
 /// The least-squares colour `c` with `factor · c ≈ target` over `pixels`, clamped to `[0, max]`.
