@@ -84,10 +84,11 @@ impl Embedded {
     pub fn admit(queue: &Queue, record: JobRecord) -> Result<Admission, Refusal> {
         let mut state = lock(&queue.state);
         if let Some(idempotency) = &record.idempotency {
-            let earlier =
-                queue
-                    .store()
-                    .idempotent(&record.owner, &idempotency.key, queue.keys_since())?;
+            let earlier = queue.store().idempotent(
+                &record.owner,
+                &idempotency.key,
+                queue.config.keys_since(),
+            )?;
             if let Some(earlier) = earlier {
                 return if earlier.idempotency.as_ref() == Some(idempotency) {
                     Ok(Admission::Replayed(state.remember(JobEntry::new(earlier))))
@@ -128,7 +129,7 @@ impl Embedded {
             Some(CancelReason::User),
             queue.config.retention,
         );
-        let saved = queue.save(entry);
+        let saved = super::save(queue.store(), entry);
         lock(&queue.state).file(entry);
         saved.map(|()| false)
     }
@@ -195,7 +196,7 @@ fn run_jobs(queue: &Arc<Queue>, pool: &rayon::ThreadPool) {
             deleted
         };
         if deleted {
-            queue.remove_deleted_files(&entry.id);
+            super::remove_deleted_files(queue.store(), &entry.id);
         }
         queue.changed.notify_all();
     }
@@ -210,7 +211,7 @@ fn run_job(queue: &Queue, entry: &Arc<JobEntry>, pool: &rayon::ThreadPool) {
     }
     // Saved as queued when interrupted: the next start runs it again.
     if queue.runner.run(entry, pool) != Settled::Deleted
-        && let Err(error) = queue.save(entry)
+        && let Err(error) = super::save(queue.store(), entry)
     {
         warn!("saving the outcome: {error}");
     }

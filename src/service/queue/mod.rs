@@ -83,6 +83,13 @@ impl Default for QueueConfig {
     }
 }
 
+impl QueueConfig {
+    /// Creation time (Unix ms) from which Idempotency-Keys still hold.
+    fn keys_since(&self) -> u64 {
+        now_ms().saturating_sub(self.idempotency_window.as_millis() as u64)
+    }
+}
+
 pub struct Queue {
     config: QueueConfig,
     /// Runs jobs; its decode slots ([`InputLimits::decode_slots`]) are shared by the requests
@@ -313,7 +320,10 @@ impl Queue {
         key: &str,
         fingerprint: &str,
     ) -> Result<Option<Arc<JobEntry>>, Refusal> {
-        let Some(earlier) = self.store().idempotent(owner, key, self.keys_since())? else {
+        let Some(earlier) = self
+            .store()
+            .idempotent(owner, key, self.config.keys_since())?
+        else {
             return Ok(None);
         };
         let same = earlier
@@ -324,11 +334,6 @@ impl Queue {
             return Err(Refusal::IdempotencyMismatch);
         }
         Ok(Some(lock(&self.state).remember(JobEntry::new(earlier))))
-    }
-
-    /// Creation time (Unix ms) from which Idempotency-Keys still hold.
-    fn keys_since(&self) -> u64 {
-        now_ms().saturating_sub(self.config.idempotency_window.as_millis() as u64)
     }
 
     /// Refuses new work of `client` when draining, when the queue is full, or when the
@@ -381,15 +386,9 @@ impl Queue {
         entry.deleted.store(true, Ordering::SeqCst);
         drop(state);
         if !running {
-            self.remove_deleted_files(&entry.id);
+            remove_deleted_files(self.store(), &entry.id);
         }
         Ok(())
-    }
-
-    fn remove_deleted_files(&self, id: &str) {
-        if let Err(error) = self.store().remove_artefacts(id) {
-            warn!(job_id = %id, "removing a deleted job's files (left to the sweep): {error}");
-        }
     }
 
     /// Removes job directories no job owns that are older than `min_age` (see
@@ -423,7 +422,7 @@ impl Queue {
                     entry
                         .record
                         .send_modify(|record| record.data_removed = true);
-                    self.save(&entry)
+                    save(self.store(), &entry)
                 });
                 match removal {
                     Ok(()) => removed += 1,
@@ -438,37 +437,12 @@ impl Queue {
                 break;
             }
         }
-        self.expire_records(now);
-        if let Err(error) = self.store().drop_idempotency_keys(self.keys_since()) {
+        expire_records(self, now);
+        if let Err(error) = self.store().drop_idempotency_keys(self.config.keys_since()) {
             warn!("removing expired idempotency keys: {error}");
         }
         self.backend.purge(self);
         removed
-    }
-
-    /// Deletes the records of jobs that ended more than the record retention ago (their files
-    /// too, if any are left), and forgets the expired ids kept as long again.
-    fn expire_records(&self, now: u64) {
-        let cutoff = now.saturating_sub(self.config.record_retention.as_millis() as u64);
-        loop {
-            let expired = match self.store().expire_records(cutoff, cutoff, EXPIRY_BATCH) {
-                Ok(expired) => expired,
-                Err(error) => {
-                    warn!("deleting expired job records: {error}");
-                    return;
-                }
-            };
-            for id in &expired {
-                lock(&self.state).forget(id);
-                self.remove_deleted_files(id);
-            }
-            if !expired.is_empty() {
-                info!(records = expired.len(), "expired job records deleted");
-            }
-            if expired.len() < EXPIRY_BATCH {
-                return;
-            }
-        }
     }
 
     /// Stops taking jobs, lets running ones finish for up to `grace`, then stops them; they are
@@ -503,12 +477,6 @@ impl Queue {
         }
     }
 
-    /// Persists a job's record, retrying transient failures.
-    fn save(&self, entry: &JobEntry) -> Result<(), Refusal> {
-        retry_transient("saving the job", || self.store().save(&entry.snapshot()))
-            .map_err(Refusal::from)
-    }
-
     /// A stored file of a job, checked against the digest recorded when it was written: in the
     /// job's record for its results, in its folder's digests for an edit's files (a file cut
     /// short or altered on disk is an error, never served as if whole).
@@ -535,5 +503,42 @@ impl Queue {
             return Err(Refusal::CorruptResult(name.to_owned()));
         }
         Ok(bytes)
+    }
+}
+
+/// Deletes the records of jobs that ended more than the record retention ago (their files
+/// too, if any are left), and forgets the expired ids kept as long again.
+fn expire_records(queue: &Queue, now: u64) {
+    let cutoff = now.saturating_sub(queue.config.record_retention.as_millis() as u64);
+    loop {
+        let expired = match queue.store().expire_records(cutoff, cutoff, EXPIRY_BATCH) {
+            Ok(expired) => expired,
+            Err(error) => {
+                warn!("deleting expired job records: {error}");
+                return;
+            }
+        };
+        for id in &expired {
+            lock(&queue.state).forget(id);
+            remove_deleted_files(queue.store(), id);
+        }
+        if !expired.is_empty() {
+            info!(records = expired.len(), "expired job records deleted");
+        }
+        if expired.len() < EXPIRY_BATCH {
+            return;
+        }
+    }
+}
+
+/// Persists a job's record, retrying transient failures.
+fn save(store: &Store, entry: &JobEntry) -> Result<(), Refusal> {
+    retry_transient("saving the job", || store.save(&entry.snapshot())).map_err(Refusal::from)
+}
+
+/// Removes a deleted job's files; what cannot be removed is left to the orphan sweep.
+fn remove_deleted_files(store: &Store, id: &str) {
+    if let Err(error) = store.remove_artefacts(id) {
+        warn!(job_id = %id, "removing a deleted job's files (left to the sweep): {error}");
     }
 }

@@ -93,7 +93,12 @@ impl Shared {
         }
         let config = &queue.config;
         let key_limit = config.scheduling.limits_of(&record.client).queued;
-        match postgres(queue).insert(&record, config.max_queued, key_limit, queue.keys_since())? {
+        match postgres(queue).insert(
+            &record,
+            config.max_queued,
+            key_limit,
+            queue.config.keys_since(),
+        )? {
             Inserted::Created => {
                 let entry = lock(&queue.state).remember(JobEntry::new(record));
                 Ok(Admission::Created(entry))
