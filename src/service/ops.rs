@@ -143,13 +143,11 @@ pub async fn readiness(
         content_type = "text/plain")),
 )]
 async fn metrics(State(state): State<AppState>) -> Response {
-    let (queued, running) = state.queue.depth();
-    let queue = QueueGauges {
-        queued,
-        running,
-        in_memory: state.queue.in_memory(),
-    };
-    metrics_text(&state.metrics, Some(queue), state.queue.workers())
+    metrics_text(
+        &state.metrics,
+        Some(state.queue.gauges()),
+        state.queue.workers(),
+    )
 }
 
 /// The `/metrics` answer: what `metrics` recorded, with the queue's gauges where known (API

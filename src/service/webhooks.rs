@@ -154,7 +154,7 @@ impl Webhooks {
 
     /// Resumes the unfinished deliveries of stored jobs (after a start).
     pub fn resume(self: &Arc<Self>) -> Result<(), StoreError> {
-        for entry in self.queue.deliveries_to_resume()? {
+        for entry in self.queue.deliveries().to_resume()? {
             self.follow(entry);
         }
         Ok(())
@@ -258,7 +258,8 @@ impl Webhooks {
         loop {
             tokio::time::sleep(REAP_EVERY).await;
             let queue = Arc::clone(&self.queue);
-            let taken = tokio::task::spawn_blocking(move || queue.deliveries_to_take_over()).await;
+            let taken =
+                tokio::task::spawn_blocking(move || queue.deliveries().to_take_over()).await;
             match taken {
                 Ok(Ok(entries)) => {
                     for entry in entries {
@@ -276,7 +277,7 @@ impl Webhooks {
     async fn run(self: Arc<Self>, entry: Arc<JobEntry>) {
         self.deliver_events(&entry).await;
         let (queue, id) = (Arc::clone(&self.queue), entry.id.clone());
-        let done = tokio::task::spawn_blocking(move || queue.deliveries_done(&id)).await;
+        let done = tokio::task::spawn_blocking(move || queue.deliveries().done(&id)).await;
         if let Ok(Err(error)) = done {
             // The claim expires and another replica finds nothing left to deliver.
             warn!(job_id = %entry.id, "ending webhook deliveries: {error}");

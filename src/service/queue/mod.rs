@@ -25,7 +25,7 @@ use super::inputs::{EncodedInputs, InputLimits};
 use super::model::{CancelReason, JobRecord, Placement, Status, now_ms};
 use super::runner::{JobEntry, Runner, lock};
 use super::store::{Store, StoreError, digest, retry_transient};
-use super::telemetry::Metrics;
+use super::telemetry::{Metrics, QueueGauges};
 use super::worker::{DEFAULT_LEASE, WorkerError};
 use backend::Backend;
 use state::State;
@@ -104,6 +104,29 @@ pub struct Queue {
     backend: Backend,
     /// Embedded runners, and the shared backend's follower thread.
     threads: Mutex<Vec<JoinHandle<()>>>,
+}
+
+/// Which jobs' webhook deliveries this process makes, as the backend decides
+/// ([`Queue::deliveries`]).
+pub struct Deliveries<'a> {
+    queue: &'a Queue,
+}
+
+impl Deliveries<'_> {
+    /// At start: the jobs whose deliveries this process is to resume.
+    pub fn to_resume(&self) -> Result<Vec<Arc<JobEntry>>, StoreError> {
+        self.queue.backend.deliveries_to_resume(self.queue)
+    }
+
+    /// Every so often: the jobs whose deliveries another replica stopped making.
+    pub fn to_take_over(&self) -> Result<Vec<Arc<JobEntry>>, StoreError> {
+        self.queue.backend.deliveries_to_take_over(self.queue)
+    }
+
+    /// The job's deliveries are all made or given up.
+    pub fn done(&self, id: &str) -> Result<(), StoreError> {
+        self.queue.backend.deliveries_done(self.queue, id)
+    }
 }
 
 /// A page of a listing: each job with its queue position while queued.
@@ -198,10 +221,18 @@ impl Queue {
         &self.runner.store
     }
 
-    /// (queued, running) job counts: of every process on the shared backend (as the follower
-    /// last read them).
-    pub fn depth(&self) -> (usize, usize) {
-        self.backend.depth(&lock(&self.state))
+    /// The queue's gauges for `/metrics`: queued and running jobs (of every process on the
+    /// shared backend, as the follower last read them), and the jobs held in memory (the live
+    /// ones and the ended ones in use).
+    pub fn gauges(&self) -> QueueGauges {
+        let state = lock(&self.state);
+        let (queued, running) = self.backend.depth(&state);
+        let held = state.held.values().filter(|held| held.strong_count() > 0);
+        QueueGauges {
+            queued,
+            running,
+            in_memory: state.live.len() + held.count(),
+        }
     }
 
     /// Ready to take work: not draining and every runner (or job slot) alive.
@@ -238,26 +269,9 @@ impl Queue {
         Ok(self.store().expired_owner(id)?.as_ref() == Some(owner))
     }
 
-    /// At start: the jobs whose webhook deliveries this process is to resume.
-    pub fn deliveries_to_resume(&self) -> Result<Vec<Arc<JobEntry>>, StoreError> {
-        self.backend.deliveries_to_resume(self)
-    }
-
-    /// Every so often: the jobs whose deliveries another replica stopped making.
-    pub fn deliveries_to_take_over(&self) -> Result<Vec<Arc<JobEntry>>, StoreError> {
-        self.backend.deliveries_to_take_over(self)
-    }
-
-    /// The job's deliveries are all made or given up.
-    pub fn deliveries_done(&self, id: &str) -> Result<(), StoreError> {
-        self.backend.deliveries_done(self, id)
-    }
-
-    /// How many jobs are held in memory: the live ones and the ended ones in use.
-    pub fn in_memory(&self) -> usize {
-        let state = lock(&self.state);
-        let held = state.held.values().filter(|held| held.strong_count() > 0);
-        state.live.len() + held.count()
+    /// What the webhook deliverer asks of the backend.
+    pub fn deliveries(&self) -> Deliveries<'_> {
+        Deliveries { queue: self }
     }
 
     /// Where a job stands while it is queued.
