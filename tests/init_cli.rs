@@ -362,10 +362,16 @@ fn eval_scores_skin_inside_the_masks_of_a_faces_file() {
     let row: Vec<&str> = text.lines().nth(1).unwrap().split(',').collect();
     for name in ["skin_mean_de", "skin_pixel_de"] {
         let at = header.iter().position(|h| *h == name).unwrap();
-        let value: f32 = row[at].parse().unwrap_or_else(|_| panic!("{name} in {text}"));
+        let value: f32 = row[at]
+            .parse()
+            .unwrap_or_else(|_| panic!("{name} in {text}"));
         assert!((0.0..50.0).contains(&value), "{name} {value}");
     }
-    assert!(stderr(&out).contains("| apple | covec | 8 |"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("| apple | covec | 8 |"),
+        "{}",
+        stderr(&out)
+    );
 
     std::fs::write(&faces, "face apple 256 256\nskin circle 1 2 3\n").unwrap();
     assert_one_line_error(&args(&faces), "line 2");

@@ -192,10 +192,14 @@ pub fn run(args: &Args) -> Result<(), Error> {
         return Err(Error::NoImages);
     }
     let face_masks = match &args.faces {
-        Some(path) => faces::parse(&String::from_utf8_lossy(&io::read(path)?)).map_err(|source| Error::Faces {
-            path: path.clone(),
-            source,
-        })?,
+        Some(path) => {
+            faces::parse(&String::from_utf8_lossy(&io::read(path)?)).map_err(|source| {
+                Error::Faces {
+                    path: path.clone(),
+                    source,
+                }
+            })?
+        }
         None => Vec::new(),
     };
     let mut csv = String::from(CSV_HEADER);

@@ -119,7 +119,12 @@ pub fn parse(text: &str) -> Result<Vec<FaceMask>, ParseError> {
             line: index + 1,
             reason,
         };
-        let words: Vec<&str> = raw.split('#').next().unwrap_or("").split_whitespace().collect();
+        let words: Vec<&str> = raw
+            .split('#')
+            .next()
+            .unwrap_or("")
+            .split_whitespace()
+            .collect();
         let Some((&keyword, rest)) = words.split_first() else {
             continue;
         };
