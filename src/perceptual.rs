@@ -1,5 +1,7 @@
 //! Weight-free perceptual measures beside MSE/PSNR/SSIM: GMSD (Xue, Zhang, Mou & Bovik 2014) and
-//! MS-SSIM (Wang, Simoncelli & Bovik 2003). Both need no learned weights, unlike LPIPS.
+//! MS-SSIM (Wang, Simoncelli & Bovik 2003). Both need no learned weights, unlike LPIPS. For
+//! colour: CIELAB ([`lab`]) and the CIEDE2000 difference ([`ciede2000`]), checked against
+//! Sharma, Wu & Dalal's published test pairs.
 //!
 //! Both compare grey levels on the 0-255 scale, as their authors' reference code does when it is
 //! given `rgb2gray` of a colour image; [`Grey::luma`] uses Octave's `rgb2gray` weights. The
@@ -421,6 +423,93 @@ pub fn ssim_means(
     }
 }
 
+/// CIE XYZ of the D65 white (2° observer), Y = 1: the sRGB white.
+const D65_WHITE: [f64; 3] = [0.950_47, 1.0, 1.088_83];
+
+/// CIELAB (D65 white) of an sRGB colour with channels in [0, 1]: L in [0, 100].
+pub fn lab(rgb: [f32; 3]) -> [f64; 3] {
+    let linear = rgb.map(|v| {
+        let v = f64::from(v).clamp(0.0, 1.0);
+        if v <= 0.040_45 {
+            v / 12.92
+        } else {
+            ((v + 0.055) / 1.055).powf(2.4)
+        }
+    });
+    let [r, g, b] = linear;
+    let xyz = [
+        0.412_456_4 * r + 0.357_576_1 * g + 0.180_437_5 * b,
+        0.212_672_9 * r + 0.715_152_2 * g + 0.072_175_0 * b,
+        0.019_333_9 * r + 0.119_192_0 * g + 0.950_304_1 * b,
+    ];
+    let f = |t: f64| {
+        const DELTA: f64 = 6.0 / 29.0;
+        if t > DELTA * DELTA * DELTA {
+            t.cbrt()
+        } else {
+            t / (3.0 * DELTA * DELTA) + 4.0 / 29.0
+        }
+    };
+    let [fx, fy, fz] = [0, 1, 2].map(|c| f(xyz[c] / D65_WHITE[c]));
+    [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
+}
+
+/// The CIEDE2000 difference of two CIELAB colours (Sharma, Wu & Dalal 2005, with
+/// kL = kC = kH = 1): about 1 is a just noticeable difference, 2.3 the JND often quoted.
+pub fn ciede2000(one: [f64; 3], two: [f64; 3]) -> f64 {
+    const POW25_7: f64 = 6_103_515_625.0; // 25^7
+    let [l1, a1, b1] = one;
+    let [l2, a2, b2] = two;
+    let mean_c = 0.5 * (a1.hypot(b1) + a2.hypot(b2));
+    let g = 0.5 * (1.0 - (mean_c.powi(7) / (mean_c.powi(7) + POW25_7)).sqrt());
+    let (a1, a2) = ((1.0 + g) * a1, (1.0 + g) * a2);
+    let (c1, c2) = (a1.hypot(b1), a2.hypot(b2));
+    let hue = |a: f64, b: f64| {
+        if a == 0.0 && b == 0.0 {
+            0.0
+        } else {
+            b.atan2(a).to_degrees().rem_euclid(360.0)
+        }
+    };
+    let (h1, h2) = (hue(a1, b1), hue(a2, b2));
+    let chroma_product = c1 * c2;
+    let dh = if chroma_product == 0.0 {
+        0.0
+    } else if (h2 - h1).abs() <= 180.0 {
+        h2 - h1
+    } else if h2 > h1 {
+        h2 - h1 - 360.0
+    } else {
+        h2 - h1 + 360.0
+    };
+    let (dl, dc) = (l2 - l1, c2 - c1);
+    let d_big_h = 2.0 * chroma_product.sqrt() * (0.5 * dh).to_radians().sin();
+    let mean_l = 0.5 * (l1 + l2);
+    let mean_c = 0.5 * (c1 + c2);
+    let mean_h = if chroma_product == 0.0 {
+        h1 + h2
+    } else if (h1 - h2).abs() <= 180.0 {
+        0.5 * (h1 + h2)
+    } else if h1 + h2 < 360.0 {
+        0.5 * (h1 + h2 + 360.0)
+    } else {
+        0.5 * (h1 + h2 - 360.0)
+    };
+    let cos = |degrees: f64| degrees.to_radians().cos();
+    let t =
+        1.0 - 0.17 * cos(mean_h - 30.0) + 0.24 * cos(2.0 * mean_h) + 0.32 * cos(3.0 * mean_h + 6.0)
+            - 0.20 * cos(4.0 * mean_h - 63.0);
+    let d_theta = 30.0 * (-((mean_h - 275.0) / 25.0).powi(2)).exp();
+    let r_c = 2.0 * (mean_c.powi(7) / (mean_c.powi(7) + POW25_7)).sqrt();
+    let l50 = (mean_l - 50.0).powi(2);
+    let s_l = 1.0 + 0.015 * l50 / (20.0 + l50).sqrt();
+    let s_c = 1.0 + 0.045 * mean_c;
+    let s_h = 1.0 + 0.015 * mean_c * t;
+    let r_t = -(2.0 * d_theta).to_radians().sin() * r_c;
+    let (l, c, h) = (dl / s_l, dc / s_c, d_big_h / s_h);
+    (l * l + c * c + h * h + r_t * c * h).max(0.0).sqrt()
+}
+
 fn assert_same_size(a: &Image, b: &Image) {
     assert!(
         (a.width, a.height) == (b.width, b.height),
@@ -436,6 +525,60 @@ fn assert_same_size(a: &Image, b: &Image) {
 mod tests {
     use super::*;
     use crate::optim::rng::Rng;
+
+    /// Pairs from Sharma, Wu & Dalal (2005), Table 1: the hue wrap-around, the neutral axis
+    /// and the rotation term near blue.
+    #[test]
+    fn ciede2000_matches_the_published_test_pairs() {
+        let pairs = [
+            ([50.0, 2.6772, -79.7751], [50.0, 0.0, -82.7485], 2.0425),
+            ([50.0, 3.1571, -77.2803], [50.0, 0.0, -82.7485], 2.8615),
+            ([50.0, 0.0, 0.0], [50.0, -1.0, 2.0], 2.3669),
+            ([50.0, 2.49, -0.001], [50.0, -2.49, 0.0009], 7.1792),
+            ([50.0, 2.49, -0.001], [50.0, -2.49, 0.0011], 7.2195),
+            ([50.0, 2.5, 0.0], [73.0, 25.0, -18.0], 27.1492),
+            ([50.0, 2.5, 0.0], [50.0, 3.1736, 0.5854], 1.0000),
+            (
+                [60.2574, -34.0099, 36.2677],
+                [60.4626, -34.1751, 39.4387],
+                1.2644,
+            ),
+            (
+                [22.7233, 20.0904, -46.694],
+                [23.0331, 14.973, -42.5619],
+                2.0373,
+            ),
+            (
+                [90.8027, -2.0831, 1.441],
+                [91.1528, -1.6435, 0.0447],
+                1.4441,
+            ),
+            ([2.0776, 0.0795, -1.135], [0.9033, -0.0636, -0.5514], 0.9082),
+        ];
+        for (one, two, expected) in pairs {
+            for (a, b) in [(one, two), (two, one)] {
+                let got = ciede2000(a, b);
+                assert!(
+                    (got - expected).abs() < 5e-5,
+                    "{a:?} {b:?}: {got}, not {expected}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn lab_of_white_black_and_srgb_red() {
+        let close = |a: [f64; 3], b: [f64; 3]| (0..3).all(|c| (a[c] - b[c]).abs() < 0.01);
+        assert!(
+            close(lab([1.0; 3]), [100.0, 0.0, 0.0]),
+            "{:?}",
+            lab([1.0; 3])
+        );
+        assert!(close(lab([0.0; 3]), [0.0, 0.0, 0.0]));
+        // sRGB red, D65: L 53.24, a 80.09, b 67.20.
+        let red = lab([1.0, 0.0, 0.0]);
+        assert!(close(red, [53.24, 80.09, 67.20]), "{red:?}");
+    }
 
     fn noisy(image: &Image, amount: f32, seed: u64) -> Image {
         let mut rng = Rng::new(seed, 7);

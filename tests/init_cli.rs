@@ -328,6 +328,55 @@ fn eval_writes_scenes_with_known_layers_and_scores_the_decomposition() {
     assert!(row("photo-retinex").contains(",16,"));
 }
 
+#[test]
+fn eval_scores_skin_inside_the_masks_of_a_faces_file() {
+    let dir = scratch("faces");
+    let image = dir.join("apple.png");
+    std::fs::copy(APPLE, &image).unwrap();
+    let faces = dir.join("faces.txt");
+    // The apple's red body, drawn on the 256² fixture; a bad line is refused with its number.
+    std::fs::write(&faces, "face apple 256 256\nskin ellipse 128 160 40 40\n").unwrap();
+    let csv = dir.join("eval.csv");
+    let args = |faces: &Path| {
+        covec(&[
+            "eval",
+            image.to_str().unwrap(),
+            "--paths",
+            "8",
+            "--method",
+            "covec",
+            "--max-size",
+            "32",
+            "--iteration-scale",
+            "0.05",
+            "--faces",
+            faces.to_str().unwrap(),
+            "--out",
+            csv.to_str().unwrap(),
+        ])
+    };
+    let out = args(&faces);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let row: Vec<&str> = text.lines().nth(1).unwrap().split(',').collect();
+    for name in ["skin_mean_de", "skin_pixel_de"] {
+        let at = header.iter().position(|h| *h == name).unwrap();
+        let value: f32 = row[at]
+            .parse()
+            .unwrap_or_else(|_| panic!("{name} in {text}"));
+        assert!((0.0..50.0).contains(&value), "{name} {value}");
+    }
+    assert!(
+        stderr(&out).contains("| apple | covec | 8 |"),
+        "{}",
+        stderr(&out)
+    );
+
+    std::fs::write(&faces, "face apple 256 256\nskin circle 1 2 3\n").unwrap();
+    assert_one_line_error(&args(&faces), "line 2");
+}
+
 /// Mean absolute difference of two same-sized RGB images, in 1/255.
 fn mean_abs_255(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
     assert_eq!(a.dimensions(), b.dimensions());

@@ -9,6 +9,7 @@ use std::time::Instant;
 use clap::Args as ClapArgs;
 
 use super::io::{self, IoError};
+use covec::eval::faces::{self, FaceMask, SkinScores};
 use covec::eval::vec::ObjectScores;
 use covec::eval::{self, Quality};
 use covec::imageio::{self, InputError, Limits, resize_rgb, working_size};
@@ -69,6 +70,11 @@ pub struct Args {
     /// Also give those masks to the pipeline, as `covec vectorize --masks` does.
     #[arg(long, requires = "semantic_masks")]
     pub use_masks: bool,
+    /// A file of hand-drawn skin masks (as benches/quality/faces.txt): adds, for each image
+    /// it names, the CIEDE2000 between the render's and the photo's mean skin colour and the
+    /// mean per-pixel CIEDE2000 inside the skin, and a table of them.
+    #[arg(long, value_name = "FILE")]
+    pub faces: Option<PathBuf>,
     /// Side of the generated scenes, in pixels.
     #[arg(long, default_value_t = 256, value_name = "PX")]
     pub scene_size: usize,
@@ -112,6 +118,11 @@ pub enum Error {
     NoScenes,
     #[error(transparent)]
     Masks(#[from] Box<super::vectorize::Error>),
+    #[error("{path}: {source}")]
+    Faces {
+        path: PathBuf,
+        source: faces::ParseError,
+    },
 }
 
 /// One run's measurements.
@@ -128,16 +139,18 @@ struct Row {
     seconds: f64,
     peak_mb: Option<f64>,
     objects: Option<ObjectScores>,
+    /// Skin colour, for an image the `--faces` file draws.
+    skin: Option<SkinScores>,
     /// Why the mode (as the job record and the CLI say it).
     mode_reason: String,
 }
 
-const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb,vec,median_iou,mode_reason";
+const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb,vec,median_iou,skin_mean_de,skin_pixel_de,mode_reason";
 
 impl Row {
     fn csv(&self) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{},{},{},\"{}\"",
+            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{},{},{},{},{},\"{}\"",
             self.image,
             self.class,
             self.method,
@@ -160,6 +173,8 @@ impl Row {
             self.peak_mb.map(|m| format!("{m:.1}")).unwrap_or_default(),
             optional(self.objects.and_then(|o| o.vec)),
             optional(self.objects.and_then(|o| o.median_iou)),
+            optional(self.skin.map(|s| s.mean_colour)),
+            optional(self.skin.map(|s| s.per_pixel)),
             self.mode_reason.replace('"', "'"),
         )
     }
@@ -176,6 +191,17 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if images.is_empty() {
         return Err(Error::NoImages);
     }
+    let face_masks = match &args.faces {
+        Some(path) => {
+            faces::parse(&String::from_utf8_lossy(&io::read(path)?)).map_err(|source| {
+                Error::Faces {
+                    path: path.clone(),
+                    source,
+                }
+            })?
+        }
+        None => Vec::new(),
+    };
     let mut csv = String::from(CSV_HEADER);
     csv.push('\n');
     let mut rows = Vec::new();
@@ -184,7 +210,8 @@ pub fn run(args: &Args) -> Result<(), Error> {
         let bytes = io::read(image_path)?;
         for &budget in &args.paths {
             for &method in &args.method {
-                let row = run_one(image_path, &bytes, method, budget, args)?;
+                let face = face_masks.iter().find(|f| f.image == stem(image_path));
+                let row = run_one(image_path, &bytes, method, budget, face, args)?;
                 eprintln!(
                     "[{}/{total}] {} {} {} paths: MSE {:.5}, PSNR {:.2}, SSIM {:.4}, GMSD {:.4}, {:.1} s, {} MB",
                     rows.len() + 1,
@@ -211,6 +238,9 @@ pub fn run(args: &Args) -> Result<(), Error> {
         None => print!("{csv}"),
     }
     eprint!("{}", summary(&rows));
+    if rows.iter().any(|r| r.skin.is_some()) {
+        eprint!("{}", skin_table(&rows));
+    }
     Ok(())
 }
 
@@ -219,6 +249,7 @@ fn run_one(
     bytes: &[u8],
     method: Method,
     budget: u32,
+    face: Option<&FaceMask>,
     args: &Args,
 ) -> Result<Row, Error> {
     let input_error = |source| Error::Input {
@@ -269,7 +300,12 @@ fn run_one(
     let svg_bytes = svg::to_svg(&scene, &SvgOptions::default()).len();
     let seconds = started.elapsed().as_secs_f64();
     let peak_mb = eval::peak_memory_bytes().map(|b| b as f64 / (1024.0 * 1024.0));
-    let quality = eval::quality(&composite(&scene), &target);
+    let render = composite(&scene);
+    let quality = eval::quality(&render, &target);
+    let skin = face.and_then(|face| {
+        let mask = face.rasterize(target.width, target.height);
+        faces::skin_scores(&render, &target, &mask)
+    });
     let objects = semantic.map(|masks| {
         let (w, h) = (scene.width, scene.height);
         let at_working_size: Vec<Vec<bool>> = masks
@@ -302,6 +338,7 @@ fn run_one(
         seconds,
         peak_mb,
         objects,
+        skin,
         mode_reason,
     })
 }
@@ -378,6 +415,42 @@ fn collect_images(path: &Path, out: &mut Vec<PathBuf>) -> Result<(), Error> {
         .into());
     }
     Ok(())
+}
+
+/// Markdown table of the skin colour per face, method and budget, and its means.
+fn skin_table(rows: &[Row]) -> String {
+    let mut out = String::from(
+        "\n| face | method | paths | mean skin colour ΔE00 | mean ΔE00 per pixel |\n|---|---|---|---|---|\n",
+    );
+    let scored: Vec<(&Row, SkinScores)> =
+        rows.iter().filter_map(|r| r.skin.map(|s| (r, s))).collect();
+    for (r, s) in &scored {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {:.2} | {:.2} |",
+            r.image, r.method, r.budget, s.mean_colour, s.per_pixel
+        );
+    }
+    let mut keys: Vec<(&str, u32)> = scored.iter().map(|(r, _)| (r.method, r.budget)).collect();
+    keys.sort_unstable();
+    keys.dedup();
+    for (method, budget) in keys {
+        let group: Vec<&SkinScores> = scored
+            .iter()
+            .filter(|(r, _)| r.method == method && r.budget == budget)
+            .map(|(_, s)| s)
+            .collect();
+        let n = group.len() as f32;
+        let worst = group.iter().map(|s| s.mean_colour).fold(0.0, f32::max);
+        let _ = writeln!(
+            out,
+            "| mean of {} (worst {worst:.2}) | {method} | {budget} | {:.2} | {:.2} |",
+            group.len(),
+            group.iter().map(|s| s.mean_colour).sum::<f32>() / n,
+            group.iter().map(|s| s.per_pixel).sum::<f32>() / n,
+        );
+    }
+    out
 }
 
 /// Markdown table of means per class, method and budget, plus an "all" row per method and budget.

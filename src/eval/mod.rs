@@ -3,6 +3,7 @@
 //! same engine, budget and total iteration count), so the value of COVec's initialisation and
 //! decomposition shows side by side.
 
+pub mod faces;
 pub mod intrinsic;
 pub mod vec;
 
