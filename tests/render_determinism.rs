@@ -63,7 +63,8 @@ fn a_render_of_chosen_strips_is_the_whole_render_there_and_the_backward_follows(
     let paths: Vec<_> = (0..3)
         .map(|_| {
             let (cx, cy) = (rng.range(8.0, 53.0), rng.range(20.0, 30.0));
-            paint(&mut rng, blob(&mut rng, cx, cy, 4.0, 4))
+            let points = blob(&mut rng, cx, cy, 4.0, 4);
+            paint(&mut rng, points)
         })
         .collect();
     let backdrop = Image {
