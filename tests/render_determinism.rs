@@ -3,7 +3,7 @@
 
 mod render_support;
 
-use covec::render::{Image, PathGrad, Rasterizer};
+use covec::render::{Backdrop, Image, PathGrad, Rasterizer, STRIP_ROWS};
 use render_support::*;
 
 fn bits(image: &Image, grads: &[PathGrad]) -> Vec<u32> {
@@ -53,4 +53,79 @@ fn output_and_gradients_are_bit_identical_across_thread_counts() {
             "run {i} differs from the single-threaded one"
         );
     }
+}
+
+#[test]
+fn a_render_of_chosen_strips_is_the_whole_render_there_and_the_backward_follows() {
+    // 61 px: four strips, the last one partial; small blobs leave some strips unpainted.
+    let size = 61;
+    let mut rng = SplitMix64(11);
+    let paths: Vec<_> = (0..3)
+        .map(|_| {
+            let (cx, cy) = (rng.range(8.0, 53.0), rng.range(20.0, 30.0));
+            let points = blob(&mut rng, cx, cy, 4.0, 4);
+            paint(&mut rng, points)
+        })
+        .collect();
+    let backdrop = Image {
+        width: size,
+        height: size,
+        data: (0..size * size * 3).map(|_| rng.uniform()).collect(),
+    };
+    let mut raster = Rasterizer::new();
+    let mut whole = Image::default();
+    raster.render_over(&paths, Backdrop::Image(&backdrop), size, size, &mut whole);
+    let mut marks = Vec::new();
+    raster.mark_strips(&paths, size, size, &mut marks);
+    assert_eq!(marks.len(), 4);
+    assert!(
+        marks.iter().any(|&m| !m),
+        "some strip is unpainted: {marks:?}"
+    );
+    let strip = 3 * STRIP_ROWS * size;
+    for (s, &marked) in marks.iter().enumerate() {
+        let values = s * strip..((s + 1) * strip).min(whole.data.len());
+        if !marked {
+            assert_eq!(
+                whole.data[values.clone()],
+                backdrop.data[values],
+                "strip {s}"
+            );
+        }
+    }
+
+    // Chosen strips over a copy of the backdrop: the whole render, bit for bit.
+    let mut part = backdrop.clone();
+    let mut fresh = Rasterizer::new();
+    fresh.render_over_strips(&paths, Backdrop::Image(&backdrop), &marks, &mut part);
+    assert_eq!(bits(&part, &[]), bits(&whole, &[]));
+    // A strip left out keeps what `out` held.
+    let mut odd = backdrop.clone();
+    let first = marks.iter().position(|&m| m).expect("a painted strip");
+    let mut fewer = marks.clone();
+    fewer[first] = false;
+    fresh.render_over_strips(&paths, Backdrop::Image(&backdrop), &fewer, &mut odd);
+    let values = first * strip..(first + 1) * strip;
+    assert_eq!(odd.data[values.clone()], backdrop.data[values]);
+
+    // The backward after a render of the marked strips is the one after a whole render.
+    let d_out = Image {
+        width: size,
+        height: size,
+        data: (0..size * size * 3).map(|_| rng.uniform() - 0.5).collect(),
+    };
+    let backward = |raster: &mut Rasterizer| {
+        let mut grads = zero_grads(&paths);
+        raster.backward_over(&paths, Backdrop::Image(&backdrop), &d_out, &mut grads);
+        bits(&Image::default(), &grads)
+    };
+    let after_part = {
+        let mut raster = Rasterizer::new();
+        let mut part = backdrop.clone();
+        raster.render_over_strips(&paths, Backdrop::Image(&backdrop), &marks, &mut part);
+        backward(&mut raster)
+    };
+    let mut raster = Rasterizer::new();
+    raster.render_over(&paths, Backdrop::Image(&backdrop), size, size, &mut whole);
+    assert_eq!(after_part, backward(&mut raster));
 }

@@ -43,17 +43,13 @@ fn threshold_region(
     let total: f64 = region.indices().map(|i| f64::from(lum[i])).sum();
     let n = region.area() as f64;
     let threshold = (total / n) as f32;
-    let shadow = Mask::from_fn(region.width(), region.height(), |x, y| {
-        region.contains(x, y) && lum[y * region.width() + x] <= threshold
-    });
+    let shadow = region.filter(|i| lum[i] <= threshold);
     // A flat region has every pixel at the threshold: nothing to separate.
     if shadow.area() == region.area() {
         return;
     }
     if levels > 1 {
-        let lit = Mask::from_fn(region.width(), region.height(), |x, y| {
-            region.contains(x, y) && !shadow.contains(x, y)
-        });
+        let lit = region.filter(|i| !shadow.contains_index(i));
         threshold_region(lum, &shadow, min_area, levels - 1, out);
         threshold_region(lum, &lit, min_area, levels - 1, out);
     }

@@ -50,6 +50,30 @@ impl Mask {
         mask
     }
 
+    /// One mask per label `0..count`, in one pass: mask `k` holds the pixels `i` with
+    /// `labels[i] == k` (a pixel with a label past `count` is in none).
+    pub fn from_labels(width: usize, height: usize, labels: &[usize], count: usize) -> Vec<Self> {
+        let mut masks = vec![Self::empty(width, height); count];
+        for (i, &k) in labels.iter().enumerate().take(width * height) {
+            if let Some(mask) = masks.get_mut(k) {
+                mask.words[i / 64] |= 1 << (i % 64);
+            }
+        }
+        masks.iter_mut().for_each(Self::recount);
+        masks
+    }
+
+    /// The pixels `i` (`y * width + x`) of the mask for which `keep(i)` holds: work in
+    /// proportion to the mask's area, not the canvas's.
+    pub fn filter(&self, mut keep: impl FnMut(usize) -> bool) -> Self {
+        let mut out = Self::empty(self.width, self.height);
+        for i in self.indices().filter(|&i| keep(i)) {
+            out.words[i / 64] |= 1 << (i % 64);
+        }
+        out.recount();
+        out
+    }
+
     pub fn width(&self) -> usize {
         self.width
     }
@@ -163,22 +187,27 @@ impl Mask {
     /// The 4-connected components of at least `min_area` pixels, largest first (ties in raster
     /// order of their first pixel).
     pub fn components(&self, min_area: usize) -> Vec<Mask> {
-        let mut label = vec![u32::MAX; self.width * self.height];
+        // Visited pixels, over the bounding box only (every component lies inside it).
+        let [x0, y0, x1, _] = self.bbox;
+        let box_width = x1 - x0;
+        let at = |i: usize| (i / self.width - y0) * box_width + i % self.width - x0;
+        let mut seen = vec![false; box_width * (self.bbox[3] - y0)];
         let mut components = Vec::new();
         for start in self.indices() {
-            if label[start] != u32::MAX {
+            if seen[at(start)] {
                 continue;
             }
-            let id = components.len() as u32;
             let mut component = Mask::empty(self.width, self.height);
             let mut stack = vec![start];
-            label[start] = id;
+            seen[at(start)] = true;
+            let mut area = 0;
             while let Some(i) = stack.pop() {
                 component.words[i / 64] |= 1 << (i % 64);
+                area += 1;
                 let (x, y) = (i % self.width, i / self.width);
                 let mut visit = |j: usize| {
-                    if label[j] == u32::MAX && self.contains_index(j) {
-                        label[j] = id;
+                    if self.contains_index(j) && !seen[at(j)] {
+                        seen[at(j)] = true;
                         stack.push(j);
                     }
                 };
@@ -195,10 +224,12 @@ impl Mask {
                     visit(i + self.width);
                 }
             }
-            component.recount();
-            components.push(component);
+            // Small ones are dropped before the whole-canvas recount.
+            if area >= min_area {
+                component.recount();
+                components.push(component);
+            }
         }
-        components.retain(|c| c.area >= min_area);
         // Stable: equal areas keep the raster order of their first pixel.
         components.sort_by_key(|c| std::cmp::Reverse(c.area));
         components

@@ -98,7 +98,5 @@ pub fn label_masks(labels: &DynamicImage, w: usize, h: usize) -> Vec<Mask> {
             };
         }
     }
-    (0..values.len())
-        .map(|k| Mask::from_fn(w, h, |x, y| index[y * w + x] == k))
-        .collect()
+    Mask::from_labels(w, h, &index, values.len())
 }

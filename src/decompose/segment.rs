@@ -31,13 +31,23 @@ pub fn segment(image: &Image, count: usize) -> Vec<Candidate> {
     let min_size = (w * h / 3000).max(4);
     let labels = felzenszwalb(&blur(image), FELZENSZWALB_K, min_size);
     let merges = ward_merges(image, &labels);
+    // Per merge a table of the superpixels on its smaller side: an index per pixel, not a
+    // set lookup per pixel.
+    let superpixels = labels.iter().max().map_or(0, |&m| m as usize + 1);
+    let mut smaller = vec![false; superpixels];
     merges
         .iter()
         .rev()
         .take(count)
-        .map(|m| Candidate {
-            mask: Mask::from_fn(w, h, |x, y| m.smaller.contains(&labels[y * w + x])),
-            gain: m.cost,
+        .map(|m| {
+            smaller.fill(false);
+            for &label in &m.smaller {
+                smaller[label as usize] = true;
+            }
+            Candidate {
+                mask: Mask::from_fn(w, h, |x, y| smaller[labels[y * w + x] as usize]),
+                gain: m.cost,
+            }
         })
         .collect()
 }

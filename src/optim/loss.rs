@@ -1,6 +1,8 @@
 //! Losses on rendered images, each returning its value and writing dLoss/dPixel. The compositing
 //! models and their backwards are in [`crate::render::composite`].
 
+use std::ops::Range;
+
 use rayon::prelude::*;
 
 use crate::render::Image;
@@ -23,23 +25,67 @@ fn lane_sum(len: usize, mut term: impl FnMut(usize) -> f64) -> f64 {
 
 /// Mean squared error over pixels × channels; writes dLoss/dPred into `grad` (resized).
 pub fn mse(pred: &Image, target: &Image, grad: &mut Image) -> f32 {
-    debug_assert_eq!(pred.data.len(), target.data.len());
-    resize_like(grad, pred);
-    let n = pred.data.len().max(1) as f32;
-    let blocks: Vec<f64> = grad
-        .data
-        .par_chunks_mut(SUM_BLOCK)
-        .zip(pred.data.par_chunks(SUM_BLOCK))
-        .zip(target.data.par_chunks(SUM_BLOCK))
-        .map(|((g, p), t)| {
-            lane_sum(g.len(), |i| {
-                let d = p[i] - t[i];
-                g[i] = 2.0 * d / n;
-                f64::from(d * d)
-            })
-        })
-        .collect();
-    (blocks.iter().sum::<f64>() / f64::from(n)) as f32
+    PartialMse::default().update(pred, target, grad, None)
+}
+
+/// One block of [`mse`]: writes its gradient, returns its sum of squares.
+fn mse_block(grad: &mut [f32], pred: &[f32], target: &[f32], n: f32) -> f64 {
+    lane_sum(grad.len(), |i| {
+        let d = pred[i] - target[i];
+        grad[i] = 2.0 * d / n;
+        f64::from(d * d)
+    })
+}
+
+/// [`mse`] of a prediction that changes in parts (a few paths moving over a fixed backdrop):
+/// it keeps the block sums between calls, so a call redoes the value and gradient of the
+/// blocks that meet the changed values only. Same value and gradient as [`mse`].
+#[derive(Default)]
+pub struct PartialMse {
+    blocks: Vec<f64>,
+    dirty: Vec<bool>,
+}
+
+impl PartialMse {
+    /// The MSE of `pred` against `target`, writing dLoss/dPred into `grad` (resized).
+    /// `changed`: the ranges of `pred.data` that differ from the last call's `pred`, or `None`
+    /// for all (as on the first call; a change of size also redoes every block). `grad`, the
+    /// same image as last time, keeps its values outside the blocks redone.
+    pub fn update(
+        &mut self,
+        pred: &Image,
+        target: &Image,
+        grad: &mut Image,
+        changed: Option<&[Range<usize>]>,
+    ) -> f32 {
+        debug_assert_eq!(pred.data.len(), target.data.len());
+        resize_like(grad, pred);
+        let n = pred.data.len().max(1) as f32;
+        let count = pred.data.len().div_ceil(SUM_BLOCK);
+        self.dirty.clear();
+        match changed {
+            Some(ranges) if self.blocks.len() == count => {
+                self.dirty.resize(count, false);
+                for range in ranges.iter().filter(|r| !r.is_empty()) {
+                    self.dirty[range.start / SUM_BLOCK..range.end.div_ceil(SUM_BLOCK)].fill(true);
+                }
+            }
+            _ => {
+                self.blocks.clear();
+                self.blocks.resize(count, 0.0);
+                self.dirty.resize(count, true);
+            }
+        }
+        grad.data
+            .par_chunks_mut(SUM_BLOCK)
+            .zip(pred.data.par_chunks(SUM_BLOCK))
+            .zip(target.data.par_chunks(SUM_BLOCK))
+            .zip(self.blocks.par_iter_mut())
+            .zip(self.dirty.par_iter())
+            .filter(|(_, dirty)| **dirty)
+            .for_each(|((((g, p), t), sum), _)| *sum = mse_block(g, p, t, n));
+        (self.blocks.iter().sum::<f64>() / f64::from(n)) as f32
+    }
 }
 
 /// Mean squared error without gradient.
@@ -119,6 +165,27 @@ mod tests {
         let loss = mse(&pred, &target, &mut grad);
         assert!((loss - mse_value(&pred, &target)).abs() < 1e-7);
         check_grad(&pred, &grad, |p| mse_value(p, &target));
+    }
+
+    #[test]
+    fn a_partial_mse_is_the_whole_one_after_a_change() {
+        let len = 3 * SUM_BLOCK + 4002;
+        let value = |i: usize, k: usize| ((i * k) % 997) as f32 / 997.0;
+        let mut pred = image(&(0..len).map(|i| value(i, 31)).collect::<Vec<_>>());
+        let target = image(&(0..len).map(|i| value(i, 17)).collect::<Vec<_>>());
+        let (mut partial, mut grad) = (PartialMse::default(), Image::default());
+        partial.update(&pred, &target, &mut grad, None);
+        // Change values across a block boundary and in the last block.
+        let changed = [SUM_BLOCK - 5..SUM_BLOCK + 7, len - 3..len];
+        for range in &changed {
+            for i in range.clone() {
+                pred.data[i] = 1.0 - pred.data[i];
+            }
+        }
+        let loss = partial.update(&pred, &target, &mut grad, Some(&changed[..]));
+        let mut whole = Image::default();
+        assert_eq!(loss.to_bits(), mse(&pred, &target, &mut whole).to_bits());
+        assert_eq!(grad, whole);
     }
 
     #[test]

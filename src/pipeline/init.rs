@@ -368,9 +368,7 @@ fn visible_parts(groups: &[Vec<Mask>], w: usize, h: usize) -> Vec<Mask> {
             owner[i] = k;
         }
     }
-    (0..masks.len())
-        .map(|k| Mask::from_fn(w, h, |x, y| owner[y * w + x] == k))
-        .collect()
+    Mask::from_labels(w, h, &owner, masks.len())
 }
 
 /// One mask of a layer with its fill and its traced outline (`None`: the full canvas), traced

@@ -10,12 +10,12 @@ use super::descent::{Descent, Objective};
 use super::keep::{Keep, KeepRun, containment_term};
 use super::params::Error;
 use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, high_error_regions};
-use super::stage::{Canvas, IterationSpan, StageRun};
+use super::stage::{Canvas, IterationSpan, StageRun, strip_ranges};
 use super::structure::Scratch;
-use crate::optim::loss::mse;
+use crate::optim::loss::PartialMse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds};
-use crate::render::composite::{product, product_backward};
+use crate::render::composite::{product, product_backward, product_range};
 use crate::render::{Image, PathGrad};
 use crate::scene::{LayerKind, Path, Scene};
 
@@ -274,6 +274,8 @@ fn train(
     let mut objective = NewPaths {
         frame,
         scratch: Scratch::default(),
+        painted: Vec::new(),
+        mse: PartialMse::default(),
     };
     let descent = Descent {
         iterations: schedule.iterations,
@@ -284,9 +286,17 @@ fn train(
 
 /// The image loss of new paths painted in their frame (`a`: the layer, `c`: the composite),
 /// with their containment term.
+///
+/// A few new paths cover a small part of the canvas, so after the first iteration only the
+/// strips they have met are rendered and composited again: everywhere else every buffer
+/// still holds what the first iteration wrote there, the frame alone, which is what a whole
+/// pass would write again.
 struct NewPaths<'a> {
     frame: &'a Frame<'a>,
     scratch: Scratch,
+    /// The strips some new path has met in an iteration so far (empty before the first).
+    painted: Vec<bool>,
+    mse: PartialMse,
 }
 
 impl Objective<[Path]> for NewPaths<'_> {
@@ -298,10 +308,30 @@ impl Objective<[Path]> for NewPaths<'_> {
             containment,
         } = *self.frame;
         let (grads, s) = (&mut grads[0], &mut self.scratch);
-        canvas.render_over(paths, backdrop, &mut s.a);
-        product(&s.a, factor, &mut s.c);
-        let mut loss = mse(&s.c, target, &mut s.d_c);
-        product_backward(&s.a, factor, &s.d_c, &mut s.d_a, &mut s.d_b);
+        let first = self.painted.is_empty();
+        canvas.mark_strips(paths, &mut self.painted);
+        let mut loss = if first {
+            canvas.render_over(paths, backdrop, &mut s.a);
+            product(&s.a, factor, &mut s.c);
+            let loss = self.mse.update(&s.c, target, &mut s.d_c, None);
+            product_backward(&s.a, factor, &s.d_c, &mut s.d_a, &mut s.d_b);
+            loss
+        } else {
+            canvas.render_over_strips(paths, backdrop, &self.painted, &mut s.a);
+            let changed: Vec<_> =
+                strip_ranges(&self.painted, canvas.width, canvas.height).collect();
+            for range in &changed {
+                product_range(&s.a, factor, &mut s.c, range.clone());
+            }
+            let loss = self
+                .mse
+                .update(&s.c, target, &mut s.d_c, Some(changed.as_slice()));
+            // Only `d_a` is read (`d_b` is the frame's, which takes no gradient).
+            for range in changed {
+                product_range(&s.d_c, factor, &mut s.d_a, range);
+            }
+            loss
+        };
         canvas.backward_over(paths, backdrop, &s.d_a, grads);
         if let Some(c) = containment {
             loss += containment_term(canvas, paths, c.parents, c.keep, grads);
@@ -376,10 +406,14 @@ fn prune(canvas: &mut Canvas, paths: &mut Vec<Path>, frame: &Frame, settings: &R
     let (backdrop, factor) = (frame.backdrop, frame.factor);
     let pixels = factor.width * factor.height;
     let threshold = settings.prune_threshold * pixels as f32 / (512.0 * 512.0);
-    let (mut full, mut without) = (Image::default(), Image::default());
+    let mut full = Image::default();
     canvas.render_over(paths, backdrop, &mut full);
+    // Without path `i` the render differs from the full one only in the strips path `i`
+    // meets: those are rendered again and compared, the rest adds exact zeros to the change.
+    let mut without = full.clone();
     let mut keep = vec![true; paths.len()];
     let mut others = Vec::with_capacity(paths.len());
+    let mut strips = Vec::new();
     for i in 0..paths.len() {
         others.clear();
         others.extend(
@@ -389,13 +423,12 @@ fn prune(canvas: &mut Canvas, paths: &mut Vec<Path>, frame: &Frame, settings: &R
                 .filter(|&(j, _)| j != i)
                 .map(|(_, p)| p.clone()),
         );
-        canvas.render_over(&others, backdrop, &mut without);
-        let change: f32 = full
-            .data
-            .iter()
-            .zip(&without.data)
-            .zip(&factor.data)
-            .map(|((a, b), f)| ((a - b) * f).abs())
+        strips.clear();
+        canvas.mark_strips(std::slice::from_ref(&paths[i]), &mut strips);
+        canvas.render_over_strips(&others, backdrop, &strips, &mut without);
+        let change: f32 = strip_ranges(&strips, canvas.width, canvas.height)
+            .flatten()
+            .map(|k| ((full.data[k] - without.data[k]) * factor.data[k]).abs())
             .sum();
         keep[i] = change > threshold;
     }

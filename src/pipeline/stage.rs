@@ -3,11 +3,12 @@
 //! (`RunContext`, `StageRun`); and rendering helpers over the rasteriser (`Canvas`).
 
 use std::cell::Cell;
+use std::ops::Range;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use super::params::{Error, Iterations, Mode, Observer, Progress, ResolvedMode};
-use crate::render::{Backdrop, Image, PathGrad, Rasterizer};
+use crate::render::{Backdrop, Image, PathGrad, Rasterizer, STRIP_ROWS};
 use crate::scene::{LayerKind, Path, Scene};
 
 /// What a stage does; [`super::run`] dispatches on it.
@@ -300,6 +301,7 @@ pub(crate) struct Canvas {
     pub width: usize,
     pub height: usize,
     scratch: Image,
+    marks: Vec<bool>,
 }
 
 impl Canvas {
@@ -309,7 +311,27 @@ impl Canvas {
             width,
             height,
             scratch: Image::default(),
+            marks: Vec::new(),
         }
+    }
+
+    /// Marks in `marks` the strips `paths` can paint (see [`Rasterizer::mark_strips`]).
+    pub fn mark_strips(&mut self, paths: &[Path], marks: &mut Vec<bool>) {
+        self.raster
+            .mark_strips(paths, self.width, self.height, marks);
+    }
+
+    /// [`Canvas::render_over`] of the strips `strips` marks only, the rest of `out` (already
+    /// the canvas's size) left as it is (see [`Rasterizer::render_over_strips`]).
+    pub fn render_over_strips(
+        &mut self,
+        paths: &[Path],
+        backdrop: &Image,
+        strips: &[bool],
+        out: &mut Image,
+    ) {
+        self.raster
+            .render_over_strips(paths, Backdrop::Image(backdrop), strips, out);
     }
 
     /// Renders `paths` over a flat `base`.
@@ -350,24 +372,47 @@ impl Canvas {
     /// Coverage in (0, 1] of `path` alone (its opacity ignored) at the pixels it touches, as
     /// `(y * width + x, coverage)` in pixel order: sparse, so many paths' coverages fit in memory.
     pub fn coverage(&mut self, path: &Path) -> Vec<(u32, f32)> {
-        let silhouette = Path {
+        let silhouette = [Path {
             points: path.points.clone(),
             color: [1.0; 3],
             opacity: 1.0,
-        };
-        self.raster.render(
-            std::slice::from_ref(&silhouette),
-            [0.0; 3],
-            self.width,
-            self.height,
+        }];
+        // Only the strips the path meets: elsewhere a whole render is all zero.
+        self.marks.clear();
+        self.raster
+            .mark_strips(&silhouette, self.width, self.height, &mut self.marks);
+        self.scratch.resize(self.width, self.height);
+        self.raster.render_over_strips(
+            &silhouette,
+            Backdrop::Color([0.0; 3]),
+            &self.marks,
             &mut self.scratch,
         );
-        self.scratch
-            .data
-            .chunks_exact(3)
-            .enumerate()
-            .filter(|(_, px)| px[0] > 0.0)
-            .map(|(i, px)| (i as u32, px[0].min(1.0)))
+        let data = &self.scratch.data;
+        strip_ranges(&self.marks, self.width, self.height)
+            .flat_map(|values| values.start / 3..values.end / 3)
+            .filter(|&i| data[3 * i] > 0.0)
+            .map(|i| (i as u32, data[3 * i].min(1.0)))
             .collect()
     }
+}
+
+/// The ranges of an image's `data` (3 values a pixel, `width × height`) that the marked strips
+/// ([`STRIP_ROWS`] rows each) hold, in order, neighbouring strips joined.
+pub(crate) fn strip_ranges(
+    marks: &[bool],
+    width: usize,
+    height: usize,
+) -> impl Iterator<Item = Range<usize>> + '_ {
+    let strip = 3 * STRIP_ROWS * width;
+    let end = 3 * width * height;
+    marks
+        .chunk_by(|a, b| a == b)
+        .scan(0, move |start, run| {
+            let range = *start..(*start + run.len() * strip).min(end);
+            *start += run.len() * strip;
+            Some((run[0], range))
+        })
+        .filter(|(marked, _)| *marked)
+        .map(|(_, range)| range)
 }

@@ -10,6 +10,8 @@
 //! # Panics
 //! Every function here panics if its images differ in size (a programming error).
 
+use std::ops::Range;
+
 use super::{Image, Rasterizer};
 use crate::scene::{LayerKind, Scene};
 
@@ -34,7 +36,15 @@ fn check_same(images: &[&Image]) {
 pub fn product(a: &Image, b: &Image, out: &mut Image) {
     check_same(&[a, b]);
     out.resize(a.width, a.height);
-    for ((o, &x), &y) in out.data.iter_mut().zip(&a.data).zip(&b.data) {
+    product_range(a, b, out, 0..a.data.len());
+}
+
+/// [`product`] of the values `range` of `data` only; `out` (already the size of `a`) keeps
+/// the rest.
+pub fn product_range(a: &Image, b: &Image, out: &mut Image, range: Range<usize>) {
+    check_same(&[a, b, out]);
+    let (a, b) = (&a.data[range.clone()], &b.data[range.clone()]);
+    for ((o, &x), &y) in out.data[range].iter_mut().zip(a).zip(b) {
         *o = x * y;
     }
 }

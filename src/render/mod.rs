@@ -9,6 +9,10 @@
 //!   colour, opacity) into `grads` (one [`PathGrad`] per path, same shapes as the paths).
 //! - Colours are not clamped here (illumination colours may exceed 1); opacities must be in [0, 1].
 //! - Results are bit-identical whatever the rayon thread count.
+//! - [`Rasterizer::render_over_strips`] renders chosen strips of [`STRIP_ROWS`] rows only, each
+//!   exactly as a whole render does; [`Rasterizer::mark_strips`] marks the strips paths can
+//!   paint (elsewhere a render is the backdrop), so a caller moving a few paths over a fixed
+//!   backdrop renders their rows alone.
 //!
 //! # How
 //! Each cubic is flattened at uniform parameters `t_k = k/n`, `n` chosen from the control polygon
@@ -369,17 +373,81 @@ impl Rasterizer {
     ) {
         backdrop.check_size(width, height);
         out.resize(width, height);
+        self.render_strips(paths, backdrop, out, None);
+    }
+
+    /// [`render_over`](Self::render_over) of the strips ([`STRIP_ROWS`] rows each, from the
+    /// top) that `strips[s]` selects: their pixels become exactly what a whole render writes
+    /// there, and the other strips of `out` are left as they are. A caller that knows those
+    /// (they hold the backdrop where [`mark_strips`](Self::mark_strips) marks no path, or a
+    /// render of the same paths) pays for the selected rows only.
+    ///
+    /// # Panics
+    /// If `out` or an image backdrop is not `width × height`, or `strips` has fewer entries
+    /// than the canvas has strips.
+    pub fn render_over_strips(
+        &mut self,
+        paths: &[Path],
+        backdrop: Backdrop,
+        strips: &[bool],
+        out: &mut Image,
+    ) {
+        let (width, height) = (out.width, out.height);
+        backdrop.check_size(width, height);
+        assert_eq!(
+            out.data.len(),
+            width * height * 3,
+            "out must be width × height × 3"
+        );
+        assert!(
+            strips.len() >= height.div_ceil(STRIP_ROWS),
+            "one entry per strip"
+        );
+        self.render_strips(paths, backdrop, out, Some(strips));
+    }
+
+    /// Marks in `marks` (resized to the strip count, marks already set kept) every strip a
+    /// drawable path of `paths` can paint on a `width × height` canvas; the others a render
+    /// leaves exactly as the backdrop.
+    pub fn mark_strips(
+        &mut self,
+        paths: &[Path],
+        width: usize,
+        height: usize,
+        marks: &mut Vec<bool>,
+    ) {
+        marks.resize(height.div_ceil(STRIP_ROWS), false);
+        self.build(paths);
+        mark_met_strips(&self.flats[0].flat, width, height, marks);
+    }
+
+    /// The forward into `out` (already `width × height`), of every strip or of the selected.
+    fn render_strips(
+        &mut self,
+        paths: &[Path],
+        backdrop: Backdrop,
+        out: &mut Image,
+        strips: Option<&[bool]>,
+    ) {
+        let (width, height) = (out.width, out.height);
         if width == 0 || height == 0 {
             return;
         }
         self.build(paths);
         let CachedFlat { flat, areas, .. } = &mut self.flats[0];
-        let store = areas.size != Some((width, height))
-            && backward::covered_area(flat, width, height) <= STORED_AREA_LIMIT;
         let strip_count = height.div_ceil(STRIP_ROWS);
+        // A selection stores the signed areas only when it holds every strip a path meets
+        // (the others store none), so that the backward can read them for every band.
+        let complete = strips.is_none_or(|selected| {
+            (0..strip_count).all(|s| selected[s] || !strip_met(flat, s, width, height))
+        });
+        let store = complete
+            && areas.size != Some((width, height))
+            && backward::covered_area(flat, width, height) <= STORED_AREA_LIMIT;
         if store && areas.strips.len() < strip_count {
             areas.strips.resize_with(strip_count, Default::default);
         }
+        let selected = |s: usize| strips.is_none_or(|selected| selected[s]);
         let pool = &self.pool;
         let strip = |s: usize, pixels: &mut [f32], store: Option<&mut StripAreas<f32>>| {
             let mut scratch = take(pool);
@@ -399,11 +467,18 @@ impl Rasterizer {
             chunks
                 .zip(areas.strips[..strip_count].par_iter_mut())
                 .enumerate()
-                .for_each(|(s, (pixels, stored))| strip(s, pixels, Some(stored)));
+                .for_each(|(s, (pixels, stored))| {
+                    if selected(s) {
+                        strip(s, pixels, Some(stored));
+                    } else {
+                        stored.clear();
+                    }
+                });
             areas.size = Some((width, height));
         } else {
             chunks
                 .enumerate()
+                .filter(|(s, _)| selected(*s))
                 .for_each(|(s, pixels)| strip(s, pixels, None));
         }
     }
@@ -557,6 +632,21 @@ fn meets_strip(bbox: [f32; 4], row0: usize, rows: usize, width: usize) -> bool {
         && bbox[1] < (row0 + rows) as f32
         && bbox[2] > 0.0
         && bbox[0] < width as f32
+}
+
+/// Whether a drawable path of `flat` meets strip `s` ([`meets_strip`]).
+fn strip_met(flat: &FlatScene<f32>, s: usize, width: usize, height: usize) -> bool {
+    let (row0, rows) = strip_rows(s, height);
+    flat.paths
+        .iter()
+        .any(|fp| !fp.verts.is_empty() && meets_strip(fp.bbox, row0, rows, width))
+}
+
+/// Sets `marks[s]` for every strip `s` a drawable path of `flat` meets.
+fn mark_met_strips(flat: &FlatScene<f32>, width: usize, height: usize, marks: &mut [bool]) {
+    for (s, mark) in marks.iter_mut().enumerate() {
+        *mark |= strip_met(flat, s, width, height);
+    }
 }
 
 /// One path's signed-area deltas over a strip (row stride `width + 2`; its signed areas once
