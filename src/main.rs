@@ -5,12 +5,6 @@ use std::process::ExitCode;
 use clap::{CommandFactory, Parser, Subcommand};
 mod cli;
 
-/// mimalloc returns freed pages to the system within milliseconds; glibc's malloc kept them per
-/// arena, and an API replica's heap grew by about 40 kB a minute under steady load while its
-/// live heap stayed near 1 MB (docs/operations.md, "The one-hour run").
-#[global_allocator]
-static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
-
 #[derive(Parser)]
 #[command(
     name = "covec",
