@@ -18,9 +18,6 @@ pub mod mask;
 pub mod organize;
 pub mod segment;
 
-use std::collections::HashMap;
-use std::hash::Hash;
-
 use image::{DynamicImage, GrayImage};
 
 use crate::render::Image;
@@ -83,60 +80,23 @@ pub fn sample_mask(mask: &GrayImage, w: usize, h: usize) -> Mask {
 pub fn label_masks(labels: &DynamicImage, w: usize, h: usize) -> Vec<Mask> {
     let rgba = labels.to_rgba16();
     let (mw, mh) = (rgba.width() as usize, rgba.height() as usize);
-    let values = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| {
-        let (sx, sy) = (
-            ((x * 2 + 1) * mw / (2 * w)).min(mw - 1),
-            ((y * 2 + 1) * mh / (2 * h)).min(mh - 1),
-        );
-        rgba.get_pixel(sx as u32, sy as u32).0
-    });
-    masks_of_values(w, h, values)
-}
-
-/// One mask per distinct colour of a map that is flat per surface ([`intrinsic::albedo_map`]):
-/// its surfaces, in order of first appearance.
-pub fn surface_masks(map: &Image) -> Vec<Mask> {
-    let values = map
-        .data
-        .chunks_exact(3)
-        .map(|px| [px[0].to_bits(), px[1].to_bits(), px[2].to_bits()]);
-    masks_of_values(map.width, map.height, values)
-}
-
-/// One mask per distinct item of `values` (row-major, `w × h` of them), in order of first
-/// appearance.
-fn masks_of_values<T: Eq + Hash>(w: usize, h: usize, values: impl Iterator<Item = T>) -> Vec<Mask> {
-    let mut seen: HashMap<T, usize> = HashMap::new();
-    let index: Vec<usize> = values
-        .map(|v| {
-            let next = seen.len();
-            *seen.entry(v).or_insert(next)
-        })
-        .collect();
-    Mask::from_labels(w, h, &index, seen.len())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_flat_map_gives_one_mask_per_surface_colour_in_order_of_first_appearance() {
-        // A grey wall with two peach squares apart: two surfaces, the peach in two pieces.
-        let (w, h) = (24, 12);
-        let peach = |x: usize, y: usize| (2..8).contains(&y) && ((2..8).contains(&x) || (14..20).contains(&x));
-        let mut map = Image::filled(w, h, [0.6; 3]);
-        for y in 0..h {
-            for x in 0..w {
-                if peach(x, y) {
-                    map.data[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[0.8, 0.6, 0.5]);
+    let mut values: Vec<[u16; 4]> = Vec::new();
+    let mut index = vec![0usize; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (sx, sy) = (
+                ((x * 2 + 1) * mw / (2 * w)).min(mw - 1),
+                ((y * 2 + 1) * mh / (2 * h)).min(mh - 1),
+            );
+            let v = rgba.get_pixel(sx as u32, sy as u32).0;
+            index[y * w + x] = match values.iter().position(|&u| u == v) {
+                Some(k) => k,
+                None => {
+                    values.push(v);
+                    values.len() - 1
                 }
-            }
+            };
         }
-        let surfaces = surface_masks(&map);
-        assert_eq!(surfaces.len(), 2);
-        assert_eq!(surfaces[0].area(), w * h - 72, "the wall, seen first");
-        assert_eq!(surfaces[1], Mask::from_fn(w, h, peach));
-        assert_eq!(surfaces[1].components(1).len(), 2);
     }
+    Mask::from_labels(w, h, &index, values.len())
 }

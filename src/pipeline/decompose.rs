@@ -6,9 +6,7 @@ use super::params::{Inputs, Masks, Mode, Params, ResolvedMode};
 use crate::decompose::look::{ANALYSIS_SIZE, Look, look};
 use crate::decompose::mask::Mask;
 use crate::decompose::segment::{self, Candidate};
-use crate::decompose::{
-    intrinsic, label_masks, min_mask_area, sample_mask, score_masks, surface_masks,
-};
+use crate::decompose::{intrinsic, label_masks, min_mask_area, sample_mask, score_masks};
 use crate::imageio::{resize_rgb, working_size};
 use crate::render::Image;
 
@@ -92,33 +90,19 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
                 .collect();
             score_masks(prepared, &albedo)
         }
-        None => {
-            let mut candidates: Vec<Candidate> = segment::segment(&albedo, SEGMENT_CANDIDATES)
-                .into_iter()
-                .filter(|c| {
-                    mode == ResolvedMode::Simple
-                        || inputs.albedo.is_some()
-                        || c.gain >= MIN_ALBEDO_GAIN
-                })
-                .flat_map(|c| {
-                    c.mask
-                        .fill_holes()
-                        .components(min_area)
-                        .into_iter()
-                        .map(move |mask| Candidate { mask, gain: c.gain })
-                })
-                .collect();
-            // Our own map's surfaces too: a small surface of distinct colour (a face on a grey
-            // wall) may split off no Ward merge of the last SEGMENT_CANDIDATES.
-            if mode == ResolvedMode::Photo && inputs.albedo.is_none() {
-                let surfaces = surface_masks(&albedo)
-                    .iter()
-                    .flat_map(|m| m.fill_holes().components(min_area))
-                    .collect();
-                candidates.extend(score_masks(surfaces, &albedo));
-            }
-            candidates
-        }
+        None => segment::segment(&albedo, SEGMENT_CANDIDATES)
+            .into_iter()
+            .filter(|c| {
+                mode == ResolvedMode::Simple || inputs.albedo.is_some() || c.gain >= MIN_ALBEDO_GAIN
+            })
+            .flat_map(|c| {
+                c.mask
+                    .fill_holes()
+                    .components(min_area)
+                    .into_iter()
+                    .map(move |mask| Candidate { mask, gain: c.gain })
+            })
+            .collect(),
     };
     Decomposition {
         target,
