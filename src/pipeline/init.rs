@@ -1,7 +1,8 @@
 //! The init stage (paper Sec. 4.2): masks → organised back-to-front groups → closed cubic paths
 //! with flat fills, within the structure share of the path budget.
 //!
-//! Photo mode: albedo paths from the albedo masks (the bottom one the full canvas), filled with
+//! Photo mode: albedo paths from the albedo masks (the bottom one the full canvas; the others
+//! the candidates first in [`perceptual_order`]), filled with
 //! the mean albedo of their visible part; illumination paths from region-wise binarisation
 //! inside the albedo regions, filled with the mean of image / albedo, clamped to [0, 1]. The
 //! illumination layer lives in `Scene::shade` until the split stage moves highlights to
@@ -12,6 +13,7 @@
 
 use super::decompose::Decomposition;
 use super::params::{Params, ResolvedMode};
+use super::rank::perceptual_order;
 use super::segments::{
     INIT_SEGMENTS_PER_PATH, MAX_TOLERANCE_SCALE, TOLERANCE_STEP, refinement_reserve,
 };
@@ -184,6 +186,10 @@ pub(crate) fn run(
     let budget = Budget::new(params.paths as usize, mode);
     let min_area = min_mask_area(w, h);
 
+    let candidates = match mode {
+        ResolvedMode::Photo => perceptual_order(candidates, &albedo_map),
+        ResolvedMode::Simple => candidates,
+    };
     let mut albedo_masks = select(&candidates, budget.albedo, true, w, h);
     let mut illumination_masks = Vec::new();
     if budget.albedo > 1 || mode == ResolvedMode::Photo {

@@ -15,6 +15,7 @@ pub(crate) mod keep;
 pub(crate) mod optimise;
 pub mod params;
 pub(crate) mod polish;
+pub(crate) mod rank;
 pub(crate) mod reconstruct;
 pub(crate) mod refine;
 pub(crate) mod regions;
