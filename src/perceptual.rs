@@ -454,6 +454,36 @@ pub fn lab(rgb: [f32; 3]) -> [f64; 3] {
     [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
 }
 
+/// The sRGB colour of a CIELAB colour (D65 white), each channel clipped to [0, 1]: the inverse
+/// of [`lab`] inside the sRGB gamut.
+pub fn srgb_of_lab([l, a, b]: [f64; 3]) -> [f32; 3] {
+    const DELTA: f64 = 6.0 / 29.0;
+    let f_inverse = |t: f64| {
+        if t > DELTA {
+            t * t * t
+        } else {
+            3.0 * DELTA * DELTA * (t - 4.0 / 29.0)
+        }
+    };
+    let fy = (l + 16.0) / 116.0;
+    let f = [fy + a / 500.0, fy, fy - b / 200.0];
+    let [x, y, z] = [0, 1, 2].map(|c| f_inverse(f[c]) * D65_WHITE[c]);
+    let linear = [
+        3.240_454_2 * x - 1.537_138_5 * y - 0.498_531_4 * z,
+        -0.969_266_0 * x + 1.876_010_8 * y + 0.041_556_0 * z,
+        0.055_643_4 * x - 0.204_025_9 * y + 1.057_225_2 * z,
+    ];
+    linear.map(|v| {
+        let v = v.clamp(0.0, 1.0);
+        let encoded = if v <= 0.003_130_8 {
+            12.92 * v
+        } else {
+            1.055 * v.powf(1.0 / 2.4) - 0.055
+        };
+        encoded as f32
+    })
+}
+
 /// The CIEDE2000 difference of two CIELAB colours (Sharma, Wu & Dalal 2005, with
 /// kL = kC = kH = 1): about 1 is a just noticeable difference, 2.3 the JND often quoted.
 pub fn ciede2000(one: [f64; 3], two: [f64; 3]) -> f64 {
@@ -578,6 +608,25 @@ mod tests {
         // sRGB red, D65: L 53.24, a 80.09, b 67.20.
         let red = lab([1.0, 0.0, 0.0]);
         assert!(close(red, [53.24, 80.09, 67.20]), "{red:?}");
+    }
+
+    #[test]
+    fn srgb_of_lab_undoes_lab() {
+        for colour in [
+            [0.0; 3],
+            [1.0; 3],
+            [0.9, 0.2, 0.1],
+            [0.1, 0.5, 0.8],
+            [0.02, 0.03, 0.01],
+        ] {
+            let back = srgb_of_lab(lab(colour));
+            assert!(
+                (0..3).all(|c| (back[c] - colour[c]).abs() < 1e-4),
+                "{colour:?} -> {back:?}"
+            );
+        }
+        // Outside the gamut each channel is clipped.
+        assert_eq!(srgb_of_lab([50.0, 200.0, 0.0])[1], 0.0);
     }
 
     fn noisy(image: &Image, amount: f32, seed: u64) -> Image {

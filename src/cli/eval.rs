@@ -9,7 +9,10 @@ use std::time::Instant;
 use clap::Args as ClapArgs;
 
 use super::io::{self, IoError};
-use covec::eval::faces::{self, FaceMask, SkinScores};
+use covec::edit::EditError;
+use covec::eval::drawn::{Drawing, ParseError};
+use covec::eval::edits::{self, EditCase, Leakage};
+use covec::eval::faces::{self, SkinScores};
 use covec::eval::vec::ObjectScores;
 use covec::eval::{self, Quality};
 use covec::imageio::{self, InputError, Limits, resize_rgb, working_size};
@@ -75,6 +78,13 @@ pub struct Args {
     /// mean per-pixel CIEDE2000 inside the skin, and a table of them.
     #[arg(long, value_name = "FILE")]
     pub faces: Option<PathBuf>,
+    /// A file of hand-drawn object masks, each with a colour (as benches/quality/edits.txt):
+    /// for each image it names, recolours the object to that colour's hue by reference (as
+    /// `covec edit --reference` does, default thresholds) and adds the mean CIEDE2000 outside the
+    /// object between the edited and the unedited render, and inside it between the edited
+    /// render and the reference, and a table of them.
+    #[arg(long, value_name = "FILE")]
+    pub edits: Option<PathBuf>,
     /// Side of the generated scenes, in pixels.
     #[arg(long, default_value_t = 256, value_name = "PX")]
     pub scene_size: usize,
@@ -119,10 +129,9 @@ pub enum Error {
     #[error(transparent)]
     Masks(#[from] Box<super::vectorize::Error>),
     #[error("{path}: {source}")]
-    Faces {
-        path: PathBuf,
-        source: faces::ParseError,
-    },
+    Drawn { path: PathBuf, source: ParseError },
+    #[error("{path}: {source}")]
+    Edit { path: PathBuf, source: EditError },
 }
 
 /// One run's measurements.
@@ -141,16 +150,18 @@ struct Row {
     objects: Option<ObjectScores>,
     /// Skin colour, for an image the `--faces` file draws.
     skin: Option<SkinScores>,
+    /// Edit leakage, for an image the `--edits` file draws.
+    edit: Option<Leakage>,
     /// Why the mode (as the job record and the CLI say it).
     mode_reason: String,
 }
 
-const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb,vec,median_iou,skin_mean_de,skin_pixel_de,mode_reason";
+const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb,vec,median_iou,skin_mean_de,skin_pixel_de,edit_paths,edit_outside_de,edit_inside_de,mode_reason";
 
 impl Row {
     fn csv(&self) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{},{},{},{},{},\"{}\"",
+            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{},{},{},{},{},{},{},{},\"{}\"",
             self.image,
             self.class,
             self.method,
@@ -175,6 +186,9 @@ impl Row {
             optional(self.objects.and_then(|o| o.median_iou)),
             optional(self.skin.map(|s| s.mean_colour)),
             optional(self.skin.map(|s| s.per_pixel)),
+            self.edit.map(|e| e.changed.to_string()).unwrap_or_default(),
+            optional(self.edit.map(|e| e.outside)),
+            optional(self.edit.map(|e| e.inside)),
             self.mode_reason.replace('"', "'"),
         )
     }
@@ -192,14 +206,11 @@ pub fn run(args: &Args) -> Result<(), Error> {
         return Err(Error::NoImages);
     }
     let face_masks = match &args.faces {
-        Some(path) => {
-            faces::parse(&String::from_utf8_lossy(&io::read(path)?)).map_err(|source| {
-                Error::Faces {
-                    path: path.clone(),
-                    source,
-                }
-            })?
-        }
+        Some(path) => read_drawn(path, faces::parse)?,
+        None => Vec::new(),
+    };
+    let edit_cases = match &args.edits {
+        Some(path) => read_drawn(path, edits::parse)?,
         None => Vec::new(),
     };
     let mut csv = String::from(CSV_HEADER);
@@ -210,8 +221,13 @@ pub fn run(args: &Args) -> Result<(), Error> {
         let bytes = io::read(image_path)?;
         for &budget in &args.paths {
             for &method in &args.method {
-                let face = face_masks.iter().find(|f| f.image == stem(image_path));
-                let row = run_one(image_path, &bytes, method, budget, face, args)?;
+                let drawn = Drawn {
+                    face: face_masks.iter().find(|f| f.image == stem(image_path)),
+                    edit: edit_cases
+                        .iter()
+                        .find(|e| e.object.image == stem(image_path)),
+                };
+                let row = run_one(image_path, &bytes, method, budget, drawn, args)?;
                 eprintln!(
                     "[{}/{total}] {} {} {} paths: MSE {:.5}, PSNR {:.2}, SSIM {:.4}, GMSD {:.4}, {:.1} s, {} MB",
                     rows.len() + 1,
@@ -241,7 +257,28 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if rows.iter().any(|r| r.skin.is_some()) {
         eprint!("{}", skin_table(&rows));
     }
+    if rows.iter().any(|r| r.edit.is_some()) {
+        eprint!("{}", edit_table(&rows));
+    }
     Ok(())
+}
+
+/// A masks file of `path`, read by `parse`.
+fn read_drawn<T>(
+    path: &Path,
+    parse: impl Fn(&str) -> Result<Vec<T>, ParseError>,
+) -> Result<Vec<T>, Error> {
+    parse(&String::from_utf8_lossy(&io::read(path)?)).map_err(|source| Error::Drawn {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// What the `--faces` and `--edits` files draw on one image.
+#[derive(Clone, Copy)]
+struct Drawn<'a> {
+    face: Option<&'a Drawing>,
+    edit: Option<&'a EditCase>,
 }
 
 fn run_one(
@@ -249,7 +286,7 @@ fn run_one(
     bytes: &[u8],
     method: Method,
     budget: u32,
-    face: Option<&FaceMask>,
+    drawn: Drawn,
     args: &Args,
 ) -> Result<Row, Error> {
     let input_error = |source| Error::Input {
@@ -302,10 +339,17 @@ fn run_one(
     let peak_mb = eval::peak_memory_bytes().map(|b| b as f64 / (1024.0 * 1024.0));
     let render = composite(&scene);
     let quality = eval::quality(&render, &target);
-    let skin = face.and_then(|face| {
+    let skin = drawn.face.and_then(|face| {
         let mask = face.rasterize(target.width, target.height);
         faces::skin_scores(&render, &target, &mask)
     });
+    let edit = match drawn.edit {
+        Some(case) => edits::leakage(&scene, &target, case).map_err(|source| Error::Edit {
+            path: path.to_path_buf(),
+            source,
+        })?,
+        None => None,
+    };
     let objects = semantic.map(|masks| {
         let (w, h) = (scene.width, scene.height);
         let at_working_size: Vec<Vec<bool>> = masks
@@ -339,6 +383,7 @@ fn run_one(
         peak_mb,
         objects,
         skin,
+        edit,
         mode_reason,
     })
 }
@@ -449,6 +494,23 @@ fn skin_table(rows: &[Row]) -> String {
             group.iter().map(|s| s.mean_colour).sum::<f32>() / n,
             group.iter().map(|s| s.per_pixel).sum::<f32>() / n,
         );
+    }
+    out
+}
+
+/// Markdown table of the edit leakage per image, method and budget.
+fn edit_table(rows: &[Row]) -> String {
+    let mut out = String::from(
+        "\n| image | method | paths | paths recoloured | outside ΔE00 (edited vs unedited) | inside ΔE00 (edited vs reference) |\n|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        if let Some(e) = r.edit {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {} | {:.2} | {:.2} |",
+                r.image, r.method, r.budget, e.changed, e.outside, e.inside
+            );
+        }
     }
     out
 }

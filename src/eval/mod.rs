@@ -3,6 +3,8 @@
 //! same engine, budget and total iteration count), so the value of COVec's initialisation and
 //! decomposition shows side by side.
 
+pub mod drawn;
+pub mod edits;
 pub mod faces;
 pub mod intrinsic;
 pub mod vec;
