@@ -3,12 +3,12 @@
 //! (illumination) → split → polish; simple: structure → reconstruct → refine (albedo) → polish.
 //!
 //! The structure stage, the first part of the reconstruction, the first refinement rounds and the
-//! first part of the polish run on a half-size copy of the scene (see [`super::coarse`]);
+//! first part of the polish run on a reduced copy of the scene (see [`super::coarse`]);
 //! previews are made at full size ([`Optimisation::coarse_then_fine`]). The reconstruction splits
 //! segments up to the segment budget ([`super::segments`]). Every stage's iterations are
 //! [`super::descent::Descent`]'s loop.
 
-use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask};
+use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask, halve_times};
 use super::init::InitState;
 use super::keep::{Keep, KeepRun, KeepSettings};
 use super::params::{Error, Params, ResolvedMode};
@@ -58,11 +58,13 @@ pub(crate) struct Optimisation<'a> {
     pub scene: Scene,
     pub report: OptimiseReport,
     groups: Vec<MaskGroup>,
-    /// What paths are held to after the structure stage (photo mode), at full and half size.
+    /// What paths are held to after the structure stage (photo mode), at full and coarse size.
     keep: Option<[Keep; 2]>,
     target: Image,
-    /// The target at half size, when the coarse phase applies.
+    /// The target at coarse size, when the coarse phase applies.
     small_target: Option<Image>,
+    /// How many times the coarse copy is halved ([`CoarseSettings::halvings`]).
+    halvings: u32,
     pub mode: ResolvedMode,
     params: &'a Params,
     settings: &'a OptimiseSettings,
@@ -113,18 +115,20 @@ impl<'a> Optimisation<'a> {
             ));
         }
         let (w, h) = (target.width, target.height);
+        let halvings = settings.coarse.halvings(w, h);
         // Photo mode only: simple mode's albedo paths are its objects and shading at once.
         let keep = (mode == ResolvedMode::Photo)
             .then(|| Keep::new(&groups, w, h, &settings.keep, masks_given))
             .filter(|k| k.albedo_weight > 0.0 || k.containment_weight > 0.0)
             .map(|full| {
-                let half = full.halved();
-                [full, half]
+                let small = halve_times(&full, halvings.max(1), Keep::halved);
+                [full, small]
             });
         Ok(Self {
             keep,
             groups,
-            small_target: settings.coarse.applies(w, h).then(|| halve_image(&target)),
+            small_target: (halvings > 0).then(|| halve_times(&target, halvings, halve_image)),
+            halvings,
             target,
             scene,
             mode,
@@ -151,7 +155,7 @@ impl<'a> Optimisation<'a> {
         }
     }
 
-    /// Runs `f` on a half-size copy of the scene (against the half-size target) and scales the
+    /// Runs `f` on the coarse copy of the scene (against the coarse target) and scales the
     /// result back.
     fn coarse<T>(
         &mut self,
@@ -161,9 +165,11 @@ impl<'a> Optimisation<'a> {
             return Ok(None);
         };
         let (w, h) = (self.target.width as u32, self.target.height as u32);
-        let mut small = self.scene.rescaled(0.5, w.div_ceil(2), h.div_ceil(2));
+        let (sw, sh) = (small_target.width as u32, small_target.height as u32);
+        let scale = 0.5f32.powi(self.halvings as i32);
+        let mut small = self.scene.rescaled(scale, sw, sh);
         let out = f(&mut small, small_target)?;
-        self.scene = small.rescaled(2.0, w, h);
+        self.scene = small.rescaled(1.0 / scale, w, h);
         Ok(Some(out))
     }
 
@@ -177,7 +183,7 @@ impl<'a> Optimisation<'a> {
     }
 
     /// Runs a stage of `total` iterations (or rounds) in two parts: the first `coarse_count` on
-    /// the half-size copy (none when the coarse phase does not apply), the rest at full size.
+    /// the coarse copy (none when the coarse phase does not apply), the rest at full size.
     /// `part` runs one part with the kept terms at its size; returns the fine part's result.
     fn coarse_then_fine<T>(
         &mut self,
@@ -187,7 +193,7 @@ impl<'a> Optimisation<'a> {
     ) -> Result<T, Error> {
         let coarse_count = self.coarse_count(coarse_count);
         let keep = self.keep.take();
-        let (full, half) = keep_runs(&keep, self.params.seed);
+        let (full, reduced) = keep_runs(&keep, self.params.seed);
         let span = |start: u32, count: u32| IterationSpan {
             start,
             count,
@@ -196,7 +202,7 @@ impl<'a> Optimisation<'a> {
         let coarse = self.coarse(|small, small_target| {
             let coarse = Part {
                 span: span(0, coarse_count),
-                keep: half.as_ref(),
+                keep: reduced.as_ref(),
                 coarse: true,
             };
             part(small, small_target, coarse)
@@ -227,11 +233,16 @@ impl<'a> Optimisation<'a> {
             seed: self.params.seed,
         };
         let groups = std::mem::take(&mut self.groups);
+        let halvings = self.halvings;
         let coarse = self.coarse(|small, small_target| {
             let small_groups: Vec<MaskGroup> = groups
                 .iter()
                 .map(|g| MaskGroup {
-                    masks: g.masks.iter().map(halve_mask).collect(),
+                    masks: g
+                        .masks
+                        .iter()
+                        .map(|m| halve_times(m, halvings, halve_mask))
+                        .collect(),
                     ..g.clone()
                 })
                 .collect();
@@ -368,17 +379,17 @@ struct Part<'k> {
     span: IterationSpan,
     /// The kept terms at the part's size.
     keep: Option<&'k KeepRun<'k>>,
-    /// Whether the part runs on the half-size copy.
+    /// Whether the part runs on the coarse copy.
     coarse: bool,
 }
 
-/// The kept terms at full and half size, for a stage that runs its coarse part on the halved
+/// The kept terms at full and coarse size, for a stage that runs its coarse part on the reduced
 /// canvas and then the rest at full size.
 fn keep_runs(keep: &Option<[Keep; 2]>, seed: u64) -> (Option<KeepRun<'_>>, Option<KeepRun<'_>>) {
     match keep {
-        Some([full, half]) => (
+        Some([full, small]) => (
             Some(KeepRun { keep: full, seed }),
-            Some(KeepRun { keep: half, seed }),
+            Some(KeepRun { keep: small, seed }),
         ),
         None => (None, None),
     }
