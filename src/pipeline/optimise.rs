@@ -3,12 +3,12 @@
 //! (illumination) → split → polish; simple: structure → reconstruct → refine (albedo) → polish.
 //!
 //! The structure stage, the first part of the reconstruction, the first refinement rounds and the
-//! first part of the polish run on a half-size copy of the scene (see [`super::coarse`]);
+//! first part of the polish run on a reduced copy of the scene (see [`super::coarse`]);
 //! previews are made at full size ([`Optimisation::coarse_then_fine`]). The reconstruction splits
 //! segments up to the segment budget ([`super::segments`]). Every stage's iterations are
 //! [`super::descent::Descent`]'s loop.
 
-use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask};
+use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask, halvings_of};
 use super::init::InitState;
 use super::keep::{Keep, KeepRun, KeepSettings};
 use super::params::{Error, Params, ResolvedMode};
@@ -58,11 +58,13 @@ pub(crate) struct Optimisation<'a> {
     pub scene: Scene,
     pub report: OptimiseReport,
     groups: Vec<MaskGroup>,
-    /// What paths are held to after the structure stage (photo mode), at full and half size.
-    keep: Option<[Keep; 2]>,
+    /// What paths are held to after the structure stage (photo mode): at full size, then
+    /// halved once, twice, … (at least once).
+    keep: Option<Vec<Keep>>,
     target: Image,
-    /// The target at half size, when the coarse phase applies.
-    small_target: Option<Image>,
+    /// The target halved once, twice, … ([`CoarseSettings::halvings`] times; none when the
+    /// coarse phase does not apply).
+    pyramid: Vec<Image>,
     pub mode: ResolvedMode,
     params: &'a Params,
     settings: &'a OptimiseSettings,
@@ -113,18 +115,19 @@ impl<'a> Optimisation<'a> {
             ));
         }
         let (w, h) = (target.width, target.height);
+        let halvings = settings.coarse.halvings(w, h);
         // Photo mode only: simple mode's albedo paths are its objects and shading at once.
         let keep = (mode == ResolvedMode::Photo)
             .then(|| Keep::new(&groups, w, h, &settings.keep, masks_given))
             .filter(|k| k.albedo_weight > 0.0 || k.containment_weight > 0.0)
             .map(|full| {
-                let half = full.halved();
-                [full, half]
+                let halved = halvings_of(&full, halvings.max(1), Keep::halved);
+                std::iter::once(full).chain(halved).collect()
             });
         Ok(Self {
             keep,
             groups,
-            small_target: settings.coarse.applies(w, h).then(|| halve_image(&target)),
+            pyramid: halvings_of(&target, halvings, halve_image),
             target,
             scene,
             mode,
@@ -151,52 +154,57 @@ impl<'a> Optimisation<'a> {
         }
     }
 
-    /// Runs `f` on a half-size copy of the scene (against the half-size target) and scales the
-    /// result back.
+    /// How many times the coarse copy is halved (0: no coarse phase).
+    fn halvings(&self) -> u32 {
+        self.pyramid.len() as u32
+    }
+
+    /// Runs `f` on a copy of the scene halved `halvings` (≥ 1) times (against the target at that
+    /// size) and scales the result back.
     fn coarse<T>(
         &mut self,
+        halvings: u32,
         f: impl FnOnce(&mut Scene, &Image) -> Result<T, Error>,
     ) -> Result<Option<T>, Error> {
-        let Some(small_target) = &self.small_target else {
+        let Some(small_target) = self.pyramid.get((halvings as usize).wrapping_sub(1)) else {
             return Ok(None);
         };
         let (w, h) = (self.target.width as u32, self.target.height as u32);
-        let mut small = self.scene.rescaled(0.5, w.div_ceil(2), h.div_ceil(2));
+        let (sw, sh) = (small_target.width as u32, small_target.height as u32);
+        let scale = 0.5f32.powi(halvings as i32);
+        let mut small = self.scene.rescaled(scale, sw, sh);
         let out = f(&mut small, small_target)?;
-        self.scene = small.rescaled(2.0, w, h);
+        self.scene = small.rescaled(1.0 / scale, w, h);
         Ok(Some(out))
     }
 
     /// How many of `asked` iterations (or rounds) run coarse: none when the phase does not apply.
     fn coarse_count(&self, asked: u32) -> u32 {
-        if self.small_target.is_some() {
-            asked
-        } else {
-            0
-        }
+        if !self.pyramid.is_empty() { asked } else { 0 }
     }
 
     /// Runs a stage of `total` iterations (or rounds) in two parts: the first `coarse_count` on
-    /// the half-size copy (none when the coarse phase does not apply), the rest at full size.
-    /// `part` runs one part with the kept terms at its size; returns the fine part's result.
+    /// the copy halved `halvings` times (none when the coarse phase does not apply), the rest at
+    /// full size. `part` runs one part with the kept terms at its size; returns the fine part's
+    /// result.
     fn coarse_then_fine<T>(
         &mut self,
         total: u32,
-        coarse_count: u32,
+        (coarse_count, halvings): (u32, u32),
         mut part: impl FnMut(&mut Scene, &Image, Part) -> Result<T, Error>,
     ) -> Result<T, Error> {
         let coarse_count = self.coarse_count(coarse_count);
         let keep = self.keep.take();
-        let (full, half) = keep_runs(&keep, self.params.seed);
+        let (full, reduced) = keep_runs(&keep, halvings, self.params.seed);
         let span = |start: u32, count: u32| IterationSpan {
             start,
             count,
             total,
         };
-        let coarse = self.coarse(|small, small_target| {
+        let coarse = self.coarse(halvings, |small, small_target| {
             let coarse = Part {
                 span: span(0, coarse_count),
-                keep: half.as_ref(),
+                keep: reduced.as_ref(),
                 coarse: true,
             };
             part(small, small_target, coarse)
@@ -227,11 +235,16 @@ impl<'a> Optimisation<'a> {
             seed: self.params.seed,
         };
         let groups = std::mem::take(&mut self.groups);
-        let coarse = self.coarse(|small, small_target| {
+        let halvings = self.halvings();
+        let coarse = self.coarse(halvings, |small, small_target| {
             let small_groups: Vec<MaskGroup> = groups
                 .iter()
                 .map(|g| MaskGroup {
-                    masks: g.masks.iter().map(halve_mask).collect(),
+                    masks: g
+                        .masks
+                        .iter()
+                        .filter_map(|m| halvings_of(m, halvings, halve_mask).pop())
+                        .collect(),
                     ..g.clone()
                 })
                 .collect();
@@ -255,7 +268,8 @@ impl<'a> Optimisation<'a> {
             ((total as f32 * self.settings.coarse.reconstruction_share).round() as u32).min(total);
         let split = SplitPlan::new(self.params.paths as usize, self.scene.path_count());
         let (settings, mode) = (&self.settings.structure, self.mode);
-        self.coarse_then_fine(total, coarse_count, |scene, target, part| {
+        let halvings = self.halvings();
+        self.coarse_then_fine(total, (coarse_count, halvings), |scene, target, part| {
             let run = ReconstructionRun {
                 span: part.span,
                 settings,
@@ -303,7 +317,8 @@ impl<'a> Optimisation<'a> {
         };
         let (budget, seed) = (self.params.paths as usize, self.params.seed);
         let coarse_settings = &self.settings.refine;
-        let fine = self.coarse_then_fine(it.refine_rounds, coarse_rounds, |scene, target, part| {
+        let coarse = (coarse_rounds, self.halvings());
+        let fine = self.coarse_then_fine(it.refine_rounds, coarse, |scene, target, part| {
             let plan = RefinePlan {
                 growth,
                 keep: part.keep,
@@ -346,7 +361,8 @@ impl<'a> Optimisation<'a> {
             polish::into_range(&mut self.scene);
             polish::model_loss(&mut self.canvas, &self.scene, &self.target, &full_loss)
         });
-        let fine = self.coarse_then_fine(total, coarse_count, |scene, target, part| {
+        let halvings = self.halvings().min(self.settings.coarse.polish_halvings);
+        let fine = self.coarse_then_fine(total, (coarse_count, halvings), |scene, target, part| {
             let coarse_loss;
             let loss = if part.coarse {
                 coarse_loss = PolishLoss::new(target, weight);
@@ -368,17 +384,26 @@ struct Part<'k> {
     span: IterationSpan,
     /// The kept terms at the part's size.
     keep: Option<&'k KeepRun<'k>>,
-    /// Whether the part runs on the half-size copy.
+    /// Whether the part runs on the coarse copy.
     coarse: bool,
 }
 
-/// The kept terms at full and half size, for a stage that runs its coarse part on the halved
+/// The kept terms at full and coarse size, for a stage that runs its coarse part on the reduced
 /// canvas and then the rest at full size.
-fn keep_runs(keep: &Option<[Keep; 2]>, seed: u64) -> (Option<KeepRun<'_>>, Option<KeepRun<'_>>) {
+fn keep_runs(
+    keep: &Option<Vec<Keep>>,
+    halvings: u32,
+    seed: u64,
+) -> (Option<KeepRun<'_>>, Option<KeepRun<'_>>) {
     match keep {
-        Some([full, half]) => (
-            Some(KeepRun { keep: full, seed }),
-            Some(KeepRun { keep: half, seed }),
+        Some(levels) => (
+            Some(KeepRun {
+                keep: &levels[0],
+                seed,
+            }),
+            levels
+                .get(halvings as usize)
+                .map(|keep| KeepRun { keep, seed }),
         ),
         None => (None, None),
     }

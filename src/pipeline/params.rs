@@ -99,7 +99,7 @@ pub struct Iterations {
     /// Iterations per refinement round. Default 100.
     pub refine: u32,
     /// Final joint polish under the exact SVG model. Default 160, of which the first 3/4 run at
-    /// half size on images of 128 px and more (`CoarseSettings::polish_share`), so 40 at full
+    /// reduced size on images of 128 px and more (`CoarseSettings::polish_share`), so 40 at full
     /// size: with a flat albedo map and split segments much is left to fit jointly.
     pub polish: u32,
 }
