@@ -50,6 +50,25 @@ impl Mask {
         mask
     }
 
+    /// The pixels `i` (`y * width + x`) listed by `indices`, in any order: work in
+    /// proportion to their number, not the canvas's.
+    ///
+    /// # Panics
+    /// If an index is past the canvas.
+    pub fn from_indices<'a>(
+        width: usize,
+        height: usize,
+        indices: impl IntoIterator<Item = &'a usize>,
+    ) -> Self {
+        let mut mask = Self::empty(width, height);
+        for &i in indices {
+            assert!(i < width * height, "pixel {i} is past the canvas");
+            mask.words[i / 64] |= 1 << (i % 64);
+        }
+        mask.recount();
+        mask
+    }
+
     /// One mask per label `0..count`, in one pass: mask `k` holds the pixels `i` with
     /// `labels[i] == k` (a pixel with a label past `count` is in none).
     pub fn from_labels(width: usize, height: usize, labels: &[usize], count: usize) -> Vec<Self> {

@@ -31,23 +31,35 @@ pub fn segment(image: &Image, count: usize) -> Vec<Candidate> {
     let min_size = (w * h / 3000).max(4);
     let labels = felzenszwalb(&blur(image), FELZENSZWALB_K, min_size);
     let merges = ward_merges(image, &labels);
-    // Per merge a table of the superpixels on its smaller side: an index per pixel, not a
-    // set lookup per pixel.
+    // The pixels of each superpixel, grouped by a counting sort: a mask then costs its own
+    // area to build, not the canvas's.
     let superpixels = labels.iter().max().map_or(0, |&m| m as usize + 1);
-    let mut smaller = vec![false; superpixels];
+    let mut starts = vec![0usize; superpixels + 1];
+    for &label in &labels {
+        starts[label as usize + 1] += 1;
+    }
+    for s in 0..superpixels {
+        starts[s + 1] += starts[s];
+    }
+    let mut pixels = vec![0usize; labels.len()];
+    let mut fill = starts.clone();
+    for (i, &label) in labels.iter().enumerate() {
+        pixels[fill[label as usize]] = i;
+        fill[label as usize] += 1;
+    }
     merges
         .iter()
         .rev()
         .take(count)
-        .map(|m| {
-            smaller.fill(false);
-            for &label in &m.smaller {
-                smaller[label as usize] = true;
-            }
-            Candidate {
-                mask: Mask::from_fn(w, h, |x, y| smaller[labels[y * w + x] as usize]),
-                gain: m.cost,
-            }
+        .map(|m| Candidate {
+            mask: Mask::from_indices(
+                w,
+                h,
+                m.smaller
+                    .iter()
+                    .flat_map(|&label| &pixels[starts[label as usize]..starts[label as usize + 1]]),
+            ),
+            gain: m.cost,
         })
         .collect()
 }
@@ -80,6 +92,11 @@ pub(super) fn blur(image: &Image) -> Image {
 }
 
 /// Felzenszwalb-Huttenlocher segmentation on the 8-neighbour grid; returns dense labels 0..n.
+///
+/// Edges are taken in order of weight, equal weights in the order they are listed (pixel by
+/// pixel, then right, down, down-right, down-left). At 1024² that is 4 million edges, so they
+/// are sorted as packed keys (see [`EdgeKey`]) by a radix sort, and the union-find keeps
+/// 32-bit links: the passes over the edges wait on memory, not on arithmetic.
 pub(super) fn felzenszwalb(image: &Image, k: f32, min_size: usize) -> Vec<u32> {
     let (w, h) = (image.width, image.height);
     let colour_distance = |a: usize, b: usize| {
@@ -88,38 +105,40 @@ pub(super) fn felzenszwalb(image: &Image, k: f32, min_size: usize) -> Vec<u32> {
             .sum::<f32>()
             .sqrt()
     };
+    let steps = EdgeKey::steps(w);
     let mut edges = Vec::with_capacity(w * h * 4);
     for y in 0..h {
         for x in 0..w {
             let i = y * w + x;
-            let mut push = |j: usize| edges.push((colour_distance(i, j), i as u32, j as u32));
-            if x + 1 < w {
-                push(i + 1);
-            }
-            if y + 1 < h {
-                push(i + w);
-                if x + 1 < w {
-                    push(i + w + 1);
-                }
-                if x > 0 {
-                    push(i + w - 1);
+            let present = [
+                x + 1 < w,
+                y + 1 < h,
+                y + 1 < h && x + 1 < w,
+                y + 1 < h && x > 0,
+            ];
+            for (direction, step) in steps.iter().enumerate() {
+                if present[direction] {
+                    edges.push(EdgeKey::new(colour_distance(i, i + step), i, direction));
                 }
             }
         }
     }
-    edges.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let edges = EdgeKey::sort(edges);
     let mut sets = DisjointSets::new(w * h);
     let mut threshold = vec![k; w * h];
-    for &(weight, a, b) in &edges {
-        let (ra, rb) = (sets.find(a as usize), sets.find(b as usize));
+    for &edge in &edges {
+        let (a, b) = edge.ends(&steps);
+        let (ra, rb) = (sets.find(a), sets.find(b));
+        let weight = edge.weight();
         if ra != rb && weight <= threshold[ra] && weight <= threshold[rb] {
             let root = sets.union(ra, rb);
-            threshold[root] = weight + k / sets.size[root] as f32;
+            threshold[root] = weight + k / sets.size(root) as f32;
         }
     }
-    for &(_, a, b) in &edges {
-        let (ra, rb) = (sets.find(a as usize), sets.find(b as usize));
-        if ra != rb && (sets.size[ra] < min_size || sets.size[rb] < min_size) {
+    for &edge in &edges {
+        let (a, b) = edge.ends(&steps);
+        let (ra, rb) = (sets.find(a), sets.find(b));
+        if ra != rb && (sets.size(ra) < min_size || sets.size(rb) < min_size) {
             sets.union(ra, rb);
         }
     }
@@ -137,25 +156,90 @@ pub(super) fn felzenszwalb(image: &Image, k: f32, min_size: usize) -> Vec<u32> {
         .collect()
 }
 
+/// A grid edge as one `u64`: the weight's bits above, `4 × pixel + direction` below. Weights
+/// are distances (≥ +0), whose bits order as the numbers do, so ordering the keys orders by
+/// weight, then by listing order: what a stable sort by weight gives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+struct EdgeKey(u64);
+
+impl EdgeKey {
+    /// The pixel offsets of the four directions: right, down, down-right, down-left.
+    fn steps(width: usize) -> [usize; 4] {
+        [1, width, width + 1, width.saturating_sub(1)]
+    }
+
+    fn new(weight: f32, pixel: usize, direction: usize) -> Self {
+        debug_assert!(weight >= 0.0 && 4 * pixel + direction <= u32::MAX as usize);
+        Self((u64::from(weight.to_bits()) << 32) | (4 * pixel + direction) as u64)
+    }
+
+    fn weight(self) -> f32 {
+        f32::from_bits((self.0 >> 32) as u32)
+    }
+
+    fn ends(self, steps: &[usize; 4]) -> (usize, usize) {
+        let slot = (self.0 & u64::from(u32::MAX)) as usize;
+        (slot / 4, slot / 4 + steps[slot % 4])
+    }
+
+    /// `edges`, listed in increasing slot order, ordered by weight then slot: a least
+    /// significant digit radix sort on the weight's bits, stable, so slots stay in order.
+    fn sort(mut edges: Vec<Self>) -> Vec<Self> {
+        let mut spare = vec![Self(0); edges.len()];
+        for shift in (32..64).step_by(8) {
+            let digit = |e: &Self| (e.0 >> shift) as usize & 0xff;
+            let mut starts = [0usize; 257];
+            for e in &edges {
+                starts[digit(e) + 1] += 1;
+            }
+            if starts.contains(&edges.len()) {
+                continue; // every key has this digit: the pass would not move anything
+            }
+            for d in 0..256 {
+                starts[d + 1] += starts[d];
+            }
+            for &e in &edges {
+                let d = digit(&e);
+                spare[starts[d]] = e;
+                starts[d] += 1;
+            }
+            std::mem::swap(&mut edges, &mut spare);
+        }
+        edges
+    }
+}
+
+/// Union-find with path halving and union by size, on 32-bit links (half the memory of
+/// `usize` ones, and these arrays are walked at random).
 pub(super) struct DisjointSets {
-    parent: Vec<usize>,
-    size: Vec<usize>,
+    parent: Vec<u32>,
+    size: Vec<u32>,
 }
 
 impl DisjointSets {
+    /// # Panics
+    /// If `n` does not fit in a `u32` (a canvas is at most 4096², 2^24 pixels).
     pub(super) fn new(n: usize) -> Self {
+        let n = u32::try_from(n).expect("set count fits in u32");
         Self {
             parent: (0..n).collect(),
-            size: vec![1; n],
+            size: vec![1; n as usize],
         }
     }
 
-    pub(super) fn find(&mut self, mut i: usize) -> usize {
-        while self.parent[i] != i {
-            self.parent[i] = self.parent[self.parent[i]];
-            i = self.parent[i];
+    pub(super) fn find(&mut self, i: usize) -> usize {
+        let mut i = i as u32;
+        while self.parent[i as usize] != i {
+            let grandparent = self.parent[self.parent[i as usize] as usize];
+            self.parent[i as usize] = grandparent;
+            i = grandparent;
         }
-        i
+        i as usize
+    }
+
+    /// The size of the set whose root is `root`.
+    pub(super) fn size(&self, root: usize) -> usize {
+        self.size[root] as usize
     }
 
     /// Joins two roots; returns the new root.
@@ -165,7 +249,7 @@ impl DisjointSets {
         } else {
             (b, a)
         };
-        self.parent[small] = big;
+        self.parent[small] = big as u32;
         self.size[big] += self.size[small];
         big
     }
@@ -283,6 +367,45 @@ fn ward_merges(image: &Image, labels: &[u32]) -> Vec<Merge> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The radix sort of packed keys orders edges as a stable sort by weight does, ties (many,
+    /// as in flat regions) in listing order.
+    #[test]
+    fn edge_keys_sort_as_a_stable_sort_by_weight() {
+        let mut state = 7u64;
+        let listed: Vec<(f32, usize, usize)> = (0..5000)
+            .map(|i| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let weight = match state >> 60 {
+                    0..=5 => 0.0,
+                    6..=9 => (state >> 40 & 0xf) as f32 / 16.0,
+                    _ => f32::from_bits((state >> 33) as u32 & 0x3fff_ffff),
+                };
+                (weight, i / 4, i % 4)
+            })
+            .collect();
+        let mut stable = listed.clone();
+        stable.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let keys = listed
+            .iter()
+            .map(|&(weight, pixel, direction)| EdgeKey::new(weight, pixel, direction));
+        let sorted = EdgeKey::sort(keys.collect());
+        let steps = EdgeKey::steps(100);
+        let unpacked: Vec<(f32, usize, usize)> = sorted
+            .iter()
+            .map(|&e| {
+                let (a, b) = e.ends(&steps);
+                (
+                    e.weight(),
+                    a,
+                    steps.iter().position(|&s| s == b - a).unwrap(),
+                )
+            })
+            .collect();
+        assert_eq!(unpacked, stable);
+    }
 
     #[test]
     fn three_flat_regions_split_in_order_of_error() {
