@@ -346,4 +346,8 @@ impl Observer for ImageProgress<'_> {
     }
 
     fn preview(&self, _name: &str, _image: &Image) {}
+
+    fn wants_previews(&self) -> bool {
+        false
+    }
 }

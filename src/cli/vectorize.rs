@@ -353,4 +353,8 @@ impl Observer for CliObserver {
             slot.get_or_insert(IoError::Write { path, source });
         }
     }
+
+    fn wants_previews(&self) -> bool {
+        self.previews.is_some()
+    }
 }

@@ -143,6 +143,9 @@ pub(crate) fn run_with(
 
 /// Previews of the init stage: masks overlaid on the target, each layer, and the composite.
 fn preview_init(state: &InitState, stage: &StageRun) {
+    if !stage.wants_previews() {
+        return;
+    }
     stage.preview_as("masks-albedo", &mask_overlay(&state.target, &state.albedo));
     if state.mode == ResolvedMode::Photo {
         stage.preview_as(

@@ -245,6 +245,11 @@ pub trait Observer: Sync {
     fn progress(&self, progress: &Progress);
     /// A stage's preview image, named e.g. `01-init-composite`; PNG-encode it as needed.
     fn preview(&self, name: &str, image: &crate::render::Image);
+    /// Whether previews are kept at all: when not, images drawn only to be previewed (the
+    /// init stage's masks and layers) are not drawn.
+    fn wants_previews(&self) -> bool {
+        true
+    }
 }
 
 /// An observer that ignores everything.
@@ -253,6 +258,9 @@ pub struct Quiet;
 impl Observer for Quiet {
     fn progress(&self, _: &Progress) {}
     fn preview(&self, _: &str, _: &crate::render::Image) {}
+    fn wants_previews(&self) -> bool {
+        false
+    }
 }
 
 /// What a run produces.

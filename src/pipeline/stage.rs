@@ -245,6 +245,11 @@ impl StageRun<'_> {
         self.preview_as(&format!("{}-{what}", self.spec.name), image);
     }
 
+    /// Whether the observer keeps previews (see [`Observer::wants_previews`]).
+    pub fn wants_previews(&self) -> bool {
+        self.run.observer.wants_previews()
+    }
+
     /// Hands a preview named `NN-what` to the observer (inputs, masks).
     pub fn preview_as(&self, what: &str, image: &Image) {
         self.run
