@@ -840,7 +840,9 @@ async function showResult(item) {
   ui.result.hidden = false;
   await showVersion();
   setState("succeeded");
-  ui.result.scrollIntoView({ behavior: "smooth", block: "start" });
+  // Smooth scrolling only for those who have not asked for reduced motion.
+  const reduced = window.matchMedia("(prefers-reduced-motion: reduce)").matches;
+  ui.result.scrollIntoView({ behavior: reduced ? "auto" : "smooth", block: "start" });
 }
 
 /** Inlines the newest version's SVG (keeping its `isolation:isolate`) and refreshes the controls. */

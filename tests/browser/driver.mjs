@@ -145,9 +145,11 @@ class Page {
    * download is still in progress and the directory (names and sizes) has not changed for
    * `SETTLE_MS`. Firefox may first write a download under a temporary name and rename it when
    * done (seen in CI: `P-T8Y7AL.json` gone when read), so a new name alone is not a finished file.
-   * Only "download" is supported.
+   * With `name`, only a file of that name counts: the directory is the whole browser's, and
+   * once in Chromium a 38 403-byte scene JSON was taken for the layered SVG a second tab saved
+   * (seen in CI; not reproduced in 9 runs since). Only "download" is supported.
    */
-  async waitForEvent(event, { timeout = ACTION_TIMEOUT_MS } = {}) {
+  async waitForEvent(event, { timeout = ACTION_TIMEOUT_MS, name } = {}) {
     if (event !== "download") throw new Error(`waitForEvent(${event}) is not supported`);
     const SETTLE_MS = 500;
     const dir = this.session.downloads;
@@ -175,7 +177,7 @@ class Page {
         since = Date.now();
       } else if (Date.now() - since >= SETTLE_MS) {
         const names = fs.readdirSync(dir);
-        const fresh = names.filter((name) => !before.has(name) && !partial(name));
+        const fresh = names.filter((file) => !before.has(file) && !partial(file) && (name === undefined || file === name));
         if (fresh.length > 0 && !names.some(partial) && !now.includes("\t?")) {
           const file = path.join(dir, fresh[0]);
           return { path: async () => file, suggestedFilename: () => fresh[0] };
@@ -183,7 +185,8 @@ class Page {
       }
       await this.waitForTimeout(50);
     }
-    throw new Error(`no download within ${timeout} ms`);
+    const seen = fs.readdirSync(dir).filter((file) => !before.has(file));
+    throw new Error(`no download${name === undefined ? "" : ` named ${name}`} within ${timeout} ms (new files: ${seen.join(", ") || "none"})`);
   }
 
   /** `clip` is in viewport coordinates (as Playwright's); puppeteer wants the document's. */

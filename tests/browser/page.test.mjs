@@ -334,10 +334,12 @@ async function run(context, base) {
   };
   /**
    * Clicks a download link and returns the saved file's name and bytes; the file is then
-   * removed, so that a later download of the same name is not renamed by the browser.
+   * removed, so that a later download of the same name is not renamed by the browser. Only a
+   * file of the name the link gives counts (a name the test expects is checked by the caller).
    */
   const downloadFrom = async (link, tab = page) => {
-    const [download] = await Promise.all([tab.waitForEvent("download"), link.click()]);
+    const name = (await link.getAttribute("download")) ?? undefined;
+    const [download] = await Promise.all([tab.waitForEvent("download", { name }), link.click()]);
     const file = await download.path();
     const bytes = fs.readFileSync(file);
     fs.rmSync(file);
