@@ -159,7 +159,7 @@ pub(super) fn felzenszwalb(image: &Image, k: f32, min_size: usize) -> Vec<u32> {
 /// A grid edge as one `u64`: the weight's bits above, `4 × pixel + direction` below. Weights
 /// are distances (≥ +0), whose bits order as the numbers do, so ordering the keys orders by
 /// weight, then by listing order: what a stable sort by weight gives.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug)]
 struct EdgeKey(u64);
 
 impl EdgeKey {

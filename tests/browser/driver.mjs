@@ -145,9 +145,10 @@ class Page {
    * download is still in progress and the directory (names and sizes) has not changed for
    * `SETTLE_MS`. Firefox may first write a download under a temporary name and rename it when
    * done (seen in CI: `P-T8Y7AL.json` gone when read), so a new name alone is not a finished file.
-   * With `name`, only a file of that name counts: the directory is the whole browser's, and
-   * once in Chromium a 38 403-byte scene JSON was taken for the layered SVG a second tab saved
-   * (seen in CI; not reproduced in 9 runs since). Only "download" is supported.
+   * With `name`, only a file of that name counts: the directory is the whole browser's, and a
+   * click that saved another file (one that landed on the next link while the page still
+   * scrolled, seen in Chromium) then fails naming the files that did come. Only "download" is
+   * supported.
    */
   async waitForEvent(event, { timeout = ACTION_TIMEOUT_MS, name } = {}) {
     if (event !== "download") throw new Error(`waitForEvent(${event}) is not supported`);
