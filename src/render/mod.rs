@@ -100,6 +100,11 @@ impl Image {
         self.height = height;
         self.data.resize(width * height * 3, 0.0);
     }
+
+    /// Whether `data` holds exactly `width × height` pixels.
+    fn is_whole(&self) -> bool {
+        self.data.len() == self.width * self.height * 3
+    }
 }
 
 /// What the paths are painted over: a flat colour or a whole image (same size as the render).
@@ -138,9 +143,7 @@ impl Backdrop<'_> {
     fn check_size(&self, width: usize, height: usize) {
         if let Backdrop::Image(image) = self {
             assert!(
-                image.width == width
-                    && image.height == height
-                    && image.data.len() == width * height * 3,
+                image.width == width && image.height == height && image.is_whole(),
                 "the backdrop must be the render's size"
             );
         }
@@ -394,11 +397,7 @@ impl Rasterizer {
     ) {
         let (width, height) = (out.width, out.height);
         backdrop.check_size(width, height);
-        assert_eq!(
-            out.data.len(),
-            width * height * 3,
-            "out must be width × height × 3"
-        );
+        assert!(out.is_whole(), "out must be width × height × 3");
         assert!(
             strips.len() >= height.div_ceil(STRIP_ROWS),
             "one entry per strip"
@@ -545,11 +544,7 @@ impl Rasterizer {
     ) {
         let (width, height) = (d_out.width, d_out.height);
         backdrop.check_size(width, height);
-        assert_eq!(
-            d_out.data.len(),
-            width * height * 3,
-            "d_out must be width × height × 3"
-        );
+        assert!(d_out.is_whole(), "d_out must be width × height × 3");
         assert!(grads.len() >= paths.len(), "one PathGrad per path");
         if width == 0 || height == 0 {
             return;
