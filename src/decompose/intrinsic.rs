@@ -11,7 +11,8 @@
 //!    shading and shadow boundaries included.
 //! 3. **Reflectance grouping.** Adjacent superpixels of nearly the same chromaticity are one
 //!    surface: a sphere's lit and dark sides and a floor inside and outside a cast shadow join,
-//!    across the shadow's boundary. The tolerance widens in the dark, where chromaticity is noisy.
+//!    across the shadow's boundary. The tolerance widens in the dark, where chromaticity is noisy,
+//!    and more between light and shadow, which bounce light from coloured surfaces tints.
 //!    Where the sky is bluer than the sun, shadows are bluer than the lit side: that shift is
 //!    estimated once for the image and undone before comparing a darker piece with a lighter.
 //!    Two groups of one chromaticity on both sides of a third (a ball's stripes) are one
@@ -49,6 +50,13 @@ const DARK_TOLERANCE: f32 = 0.01;
 /// The dark widening stops here: below a luminance of 0.1 chromaticity says little, and a
 /// black object is not the shadow of the white one beside it.
 const MAX_DARK_EXTRA: f32 = 0.1;
+/// The same two for a pair [`MIN_SHADOW_CONTRAST`] or more apart in luminance, light and its
+/// shadow: coloured bounce light (a Cornell box's red and green walls) tints a shadow more than
+/// noise does. On the Cornell scenes of benches/quality/cornell.py the albedo layer's error
+/// fell from 0.44-0.53 to 0.16-0.53 of the image's; applied to every pair, it joined two pastel
+/// objects of like lightness, and a recolour of one changed both.
+const SHADOW_DARK_TOLERANCE: f32 = 0.02;
+const SHADOW_MAX_DARK_EXTRA: f32 = 0.15;
 /// Two groups whose luminances differ by more than this factor are not one surface in light
 /// and shadow: sky and bounce light keep shadows within about a fifth of full light.
 const MAX_SHADING_RATIO: f32 = 5.0;
@@ -367,7 +375,13 @@ fn group_surfaces(corrected: &Image, labels: &[u32], illuminant: [f32; 3]) -> Gr
         }
         let (ma, mb) = (groups.stats[ra].mean(), groups.stats[rb].mean());
         let darker = intensity(ma).min(intensity(mb)).max(0.02);
-        let widening = (DARK_TOLERANCE / darker).min(MAX_DARK_EXTRA);
+        let lighter = intensity(ma).max(intensity(mb)).max(0.02);
+        let (tolerance, most) = if lighter / darker >= MIN_SHADOW_CONTRAST {
+            (SHADOW_DARK_TOLERANCE, SHADOW_MAX_DARK_EXTRA)
+        } else {
+            (DARK_TOLERANCE, MAX_DARK_EXTRA)
+        };
+        let widening = (tolerance / darker).min(most);
         if one_surface(ma, mb, shift, widening) {
             groups.join(ra, rb);
         }
