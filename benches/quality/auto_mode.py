@@ -29,19 +29,11 @@ import random
 import subprocess
 import sys
 import tarfile
-import venv
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from venvs import enter  # noqa: E402
 
 PACKAGES = ["numpy", "pillow", "scikit-image==0.26.0", "mitsuba==3.9.1", "resvg-cli==0.44.0"]
-
-
-def ensure_venv(path):
-    if os.path.realpath(sys.prefix) == os.path.realpath(path):
-        return
-    python = os.path.join(path, "bin", "python")
-    if not os.path.exists(python):
-        venv.create(path, with_pip=True)
-        subprocess.check_call([python, "-m", "pip", "install", "-q", *PACKAGES])
-    os.execv(python, [python, *sys.argv])
 
 
 def spheres(out):
@@ -164,11 +156,7 @@ def icons(out, work):
 
 
 def main():
-    args = sys.argv[1:]
-    if not args or args[0].startswith("-"):
-        sys.exit(__doc__)
-    out = args[0]
-    ensure_venv(args[args.index("--venv") + 1] if "--venv" in args else os.path.join(out, ".venv"))
+    out, args = enter(__doc__, PACKAGES)
     photo, artwork, work = (os.path.join(out, d) for d in ("photo", "artwork", "work"))
     for d in (photo, artwork, work):
         os.makedirs(d, exist_ok=True)

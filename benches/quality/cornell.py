@@ -25,23 +25,14 @@ light), so one albedo lies under many shades and the side walls bleed colour ont
 The packages go into a venv (default OUT_DIR/.venv) that the script makes and re-runs itself in.
 """
 import os
-import subprocess
 import sys
-import venv
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from venvs import enter  # noqa: E402
 
 PACKAGES = ["numpy", "pillow", "mitsuba==3.9.1"]
 SIZE = 256
 EXPOSURE = 1.0
-
-
-def ensure_venv(path):
-    if os.path.realpath(sys.prefix) == os.path.realpath(path):
-        return
-    python = os.path.join(path, "bin", "python")
-    if not os.path.exists(python):
-        venv.create(path, with_pip=True)
-        subprocess.check_call([python, "-m", "pip", "install", "-q", *PACKAGES])
-    os.execv(python, [python, *sys.argv])
 
 
 def scenes(mi):
@@ -89,11 +80,7 @@ def as_diffuse(scene):
 
 
 def main():
-    args = sys.argv[1:]
-    if not args or args[0].startswith("-"):
-        sys.exit(__doc__)
-    out = args[0]
-    ensure_venv(args[args.index("--venv") + 1] if "--venv" in args else os.path.join(out, ".venv"))
+    out, args = enter(__doc__, PACKAGES)
     spp = int(args[args.index("--spp") + 1]) if "--spp" in args else 256
 
     import mitsuba as mi

@@ -13,22 +13,12 @@ CNN detector (two bench faces, kodim15 and navy_sailor, need it). The packages g
 (default: OUT_DIR/.venv) that the script makes and re-runs itself in.
 """
 import os
-import subprocess
 import sys
-import venv
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from venvs import ensure_venv  # noqa: E402
 
 PACKAGES = ["dlib-bin==20.0.1.post1", "face-recognition-models==0.3.0", "numpy", "pillow"]
-
-
-def ensure_venv(path):
-    """Re-runs this script inside a venv holding the packages, made on first use."""
-    if os.path.realpath(sys.prefix) == os.path.realpath(path):
-        return
-    python = os.path.join(path, "bin", "python")
-    if not os.path.exists(python):
-        venv.create(path, with_pip=True)
-        subprocess.check_call([python, "-m", "pip", "install", "-q", *PACKAGES])
-    os.execv(python, [python, *sys.argv])
 
 
 def landmarks(image):
@@ -82,7 +72,7 @@ def main():
     if len(args) not in (2, 4) or (len(args) == 4 and args[2] != "--venv"):
         sys.exit(__doc__)
     faces, out = args[0], args[1]
-    ensure_venv(args[3] if len(args) == 4 else os.path.join(out, ".venv"))
+    ensure_venv(args[3] if len(args) == 4 else os.path.join(out, ".venv"), PACKAGES)
     import numpy as np
     from PIL import Image, ImageDraw
 
