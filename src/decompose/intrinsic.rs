@@ -52,9 +52,9 @@ const DARK_TOLERANCE: f32 = 0.01;
 const MAX_DARK_EXTRA: f32 = 0.1;
 /// The same two for a pair [`MIN_SHADOW_CONTRAST`] or more apart in luminance, light and its
 /// shadow: coloured bounce light (a Cornell box's red and green walls) tints a shadow more than
-/// noise does. On the Cornell scenes of benches/quality/cornell.py the albedo layer's error
-/// fell from 0.44-0.53 to 0.16-0.53 of the image's; applied to every pair, it joined two pastel
-/// objects of like lightness, and a recolour of one changed both.
+/// noise does. On the Cornell scenes of benches/quality/cornell.py the map's error fell from
+/// 0.39-0.48 to 0.15-0.48 of the image's; applied to every pair, it joined two pastel objects
+/// of like lightness, and a recolour of one changed both.
 const SHADOW_DARK_TOLERANCE: f32 = 0.02;
 const SHADOW_MAX_DARK_EXTRA: f32 = 0.15;
 /// Two groups whose luminances differ by more than this factor are not one surface in light
