@@ -15,7 +15,7 @@ covec reads:
 - shade.png: the diffuse render over the albedo, clamped to [0, 1] per channel;
 - light.png: what is left, image − albedo × shade (glossy highlights, and light above white).
 All in 8-bit sRGB values: covec composites `albedo × shade + light` in sRGB values, so the truth
-is split there too (an exposure of `EXPOSURE` keeps the walls below white). Scenes, after
+is split there too (at Mitsuba's own exposure the walls stay below white). Scenes, after
 `mi.cornell_box()` (white walls and boxes of one material, a red and a green wall, a ceiling
 light), so one albedo lies under many shades and the side walls bleed colour onto the white:
 - cornell: the classic box;
@@ -32,7 +32,6 @@ from venvs import enter  # noqa: E402
 
 PACKAGES = ["numpy", "pillow", "mitsuba==3.9.1"]
 SIZE = 256
-EXPOSURE = 1.0
 
 
 def scenes(mi):
@@ -101,8 +100,8 @@ def main():
     for name, scene in scenes(mi).items():
         folder = os.path.join(out, name)
         os.makedirs(folder, exist_ok=True)
-        full = srgb(EXPOSURE * render(scene))
-        lambert = srgb(EXPOSURE * render(as_diffuse(scene)))
+        full = srgb(render(scene))
+        lambert = srgb(render(as_diffuse(scene)))
         albedo = srgb(render(scene, {"type": "aov", "aovs": "a:albedo"}))
         # 8-bit first, so that the files themselves add up: image = albedo × shade + light.
         full, lambert, albedo = (np.round(np.clip(a, 0, 1) * 255) / 255 for a in (full, lambert, albedo))
