@@ -107,7 +107,6 @@ impl Mask {
     }
 
     /// `[x0, y0, x1, y1)`, all zero when empty.
-    #[cfg(test)]
     pub fn bbox(&self) -> [usize; 4] {
         self.bbox
     }

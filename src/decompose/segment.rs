@@ -4,8 +4,8 @@
 //! that follow edges; those are then merged pairwise, adjacent regions only, always the pair
 //! whose merge raises the flat-colour squared error least (Ward's criterion). Replaying the
 //! merges backwards splits the canvas into 2, 3, 4, … regions: every scale at once. Each split
-//! yields one candidate mask (the smaller side) scored by the error it removes, so the most
-//! useful masks come first whatever the budget.
+//! yields a candidate mask (the smaller side, or with [`Sides::Both`] both sides) scored by the
+//! error it removes, so the most useful masks come first whatever the budget.
 
 use std::cmp::Reverse;
 use std::collections::{BTreeSet, BinaryHeap};
@@ -24,9 +24,25 @@ pub struct Candidate {
 /// Superpixel granularity of the Felzenszwalb stage (colour distances in [0, √3]).
 const FELZENSZWALB_K: f32 = 0.6;
 
-/// Up to `count` candidate masks of `image`, most useful first: the smaller sides of the last
-/// `count` Ward merges.
-pub fn segment(image: &Image, count: usize) -> Vec<Candidate> {
+/// Which sides of a Ward merge become candidates.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sides {
+    /// The smaller side alone: the larger one is its parent region less it, which a path
+    /// below the smaller one already paints, so the masks nest as painted paths do.
+    Smaller,
+    /// Both sides, less a larger side that reaches all four edges of the canvas. A region that
+    /// only ever merges with smaller neighbours (a face that takes in its neck, then the
+    /// backdrop, then the flag) is never a smaller side, so `Smaller` offers it only inside
+    /// its parent; a ranking that scores overlap itself wants it alone. A larger side that
+    /// spans the canvas is background, which the canvas-wide base path already paints: offered
+    /// too, it put a second background path under kodim04's hat and curtain that the edit of
+    /// the hat recoloured, and extra edges that the flattened SVG draws less exactly.
+    Both,
+}
+
+/// Candidate masks of `image` from its last `count` Ward merges, most useful first: per merge
+/// the smaller side, then with [`Sides::Both`] the larger one, both scored by the merge's cost.
+pub fn segment(image: &Image, count: usize, sides: Sides) -> Vec<Candidate> {
     let (w, h) = (image.width, image.height);
     let min_size = (w * h / 3000).max(4);
     let labels = felzenszwalb(&blur(image), FELZENSZWALB_K, min_size);
@@ -47,26 +63,33 @@ pub fn segment(image: &Image, count: usize) -> Vec<Candidate> {
         pixels[fill[label as usize]] = i;
         fill[label as usize] += 1;
     }
+    let candidate = |superpixels: &BTreeSet<u32>, gain| Candidate {
+        mask: Mask::from_indices(
+            w,
+            h,
+            superpixels
+                .iter()
+                .flat_map(|&label| &pixels[starts[label as usize]..starts[label as usize + 1]]),
+        ),
+        gain,
+    };
     merges
         .iter()
         .rev()
         .take(count)
-        .map(|m| Candidate {
-            mask: Mask::from_indices(
-                w,
-                h,
-                m.smaller
-                    .iter()
-                    .flat_map(|&label| &pixels[starts[label as usize]..starts[label as usize + 1]]),
-            ),
-            gain: m.cost,
+        .flat_map(|m| {
+            let larger = (sides == Sides::Both)
+                .then(|| candidate(&m.larger, m.cost))
+                .filter(|c| c.mask.bbox() != [0, 0, w, h]);
+            std::iter::once(candidate(&m.smaller, m.cost)).chain(larger)
         })
         .collect()
 }
 
-/// One merge of the Ward hierarchy: the superpixels of its smaller side, and its cost.
+/// One merge of the Ward hierarchy: the superpixels of its two sides, and its cost.
 struct Merge {
     smaller: BTreeSet<u32>,
+    larger: BTreeSet<u32>,
     cost: f32,
 }
 
@@ -330,6 +353,7 @@ fn ward_merges(image: &Image, labels: &[u32]) -> Vec<Merge> {
         };
         merges.push(Merge {
             smaller: regions[small].superpixels.clone(),
+            larger: regions[a + b - small].superpixels.clone(),
             cost: cost as f32,
         });
         // The merged region takes a fresh id, so heap entries naming a or b go stale.
@@ -422,7 +446,7 @@ mod tests {
                 image.data[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[v; 3]);
             }
         }
-        let candidates = segment(&image, 2);
+        let candidates = segment(&image, 2, Sides::Smaller);
         assert!(candidates[0].gain > candidates[1].gain);
         // The last merge joins the two halves; the one before, the square to the light half.
         // Blurred edge pixels may end on either side, hence the slack.
@@ -439,5 +463,30 @@ mod tests {
             "{:?}",
             square.bbox()
         );
+    }
+
+    #[test]
+    fn both_sides_offer_a_region_that_only_takes_in_smaller_neighbours() {
+        // A dark backdrop; on its right an inset of a light "face" above a slightly darker
+        // "neck" and a mid-grey "backdrop": the face merges with the neck, then with the inset's
+        // backdrop, then the inset with the dark backdrop, and is the larger side every time.
+        let (w, h) = (60, 40);
+        let mut image = Image::filled(w, h, [0.1; 3]);
+        for y in 0..h {
+            for x in 36..w {
+                let v = match y {
+                    0..20 => 0.8,
+                    20..24 => 0.7,
+                    _ => 0.5,
+                };
+                image.data[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[v; 3]);
+            }
+        }
+        let is_face = |c: &Candidate| {
+            let [x0, y0, x1, y1] = c.mask.bbox();
+            (400..=560).contains(&c.mask.area()) && x0 >= 35 && y0 == 0 && x1 == w && y1 <= 22
+        };
+        assert!(!segment(&image, 100, Sides::Smaller).iter().any(is_face));
+        assert!(segment(&image, 100, Sides::Both).iter().any(is_face));
     }
 }

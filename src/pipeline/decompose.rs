@@ -5,7 +5,7 @@
 use super::params::{Inputs, Masks, Mode, Params, ResolvedMode};
 use crate::decompose::look::{ANALYSIS_SIZE, Look, look};
 use crate::decompose::mask::Mask;
-use crate::decompose::segment::{self, Candidate};
+use crate::decompose::segment::{self, Candidate, Sides};
 use crate::decompose::{intrinsic, label_masks, min_mask_area, sample_mask, score_masks};
 use crate::imageio::{resize_rgb, working_size};
 use crate::render::Image;
@@ -90,19 +90,28 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
                 .collect();
             score_masks(prepared, &albedo)
         }
-        None => segment::segment(&albedo, SEGMENT_CANDIDATES)
-            .into_iter()
-            .filter(|c| {
-                mode == ResolvedMode::Simple || inputs.albedo.is_some() || c.gain >= MIN_ALBEDO_GAIN
-            })
-            .flat_map(|c| {
-                c.mask
-                    .fill_holes()
-                    .components(min_area)
-                    .into_iter()
-                    .map(move |mask| Candidate { mask, gain: c.gain })
-            })
-            .collect(),
+        // Photo mode ranks candidates by what each adds over the others (`rank`), so it can
+        // take both sides of a merge; simple mode keeps the segmentation's nested order.
+        None => segment::segment(
+            &albedo,
+            SEGMENT_CANDIDATES,
+            match mode {
+                ResolvedMode::Photo => Sides::Both,
+                ResolvedMode::Simple => Sides::Smaller,
+            },
+        )
+        .into_iter()
+        .filter(|c| {
+            mode == ResolvedMode::Simple || inputs.albedo.is_some() || c.gain >= MIN_ALBEDO_GAIN
+        })
+        .flat_map(|c| {
+            c.mask
+                .fill_holes()
+                .components(min_area)
+                .into_iter()
+                .map(move |mask| Candidate { mask, gain: c.gain })
+        })
+        .collect(),
     };
     Decomposition {
         target,

@@ -187,7 +187,7 @@ pub(crate) fn run(
     let min_area = min_mask_area(w, h);
 
     let candidates = match mode {
-        ResolvedMode::Photo => perceptual_order(candidates, &albedo_map),
+        ResolvedMode::Photo => perceptual_order(candidates, &albedo_map, budget.albedo),
         ResolvedMode::Simple => candidates,
     };
     let mut albedo_masks = select(&candidates, budget.albedo, true, w, h);

@@ -34,19 +34,29 @@ const LIGHTNESS_WEIGHT: f32 = 0.5;
 const SAMPLES: usize = 128 * 128;
 
 /// `candidates` (masks of `albedo`'s canvas) reordered by the perceptual error each removes,
-/// greedily (see the module's documentation). Equal scores keep their order.
-pub(crate) fn perceptual_order(candidates: Vec<Candidate>, albedo: &Image) -> Vec<Candidate> {
+/// greedily (see the module's documentation), for the first `steps` places; the rest follow
+/// in their given order. Equal scores keep their order.
+///
+/// `steps` is how many masks the caller means to take: each greedy step scores every
+/// remaining candidate, so ranking all of them would cost as much again as the whole
+/// decomposition for places nobody takes.
+pub(crate) fn perceptual_order(
+    candidates: Vec<Candidate>,
+    albedo: &Image,
+    steps: usize,
+) -> Vec<Candidate> {
     if candidates.len() < 2 || albedo.width * albedo.height == 0 {
         return candidates;
     }
-    let order = by_eye(&candidates, albedo);
+    let mut order = by_eye(&candidates, albedo, steps);
+    order.extend(0..candidates.len());
     let mut slots: Vec<Option<Candidate>> = candidates.into_iter().map(Some).collect();
     order.into_iter().filter_map(|k| slots[k].take()).collect()
 }
 
-/// The indices of `candidates` in the greedy perceptual order (see the module's documentation);
-/// equal scores keep their order.
-fn by_eye(candidates: &[Candidate], albedo: &Image) -> Vec<usize> {
+/// The indices of the first `steps` of `candidates` in the greedy perceptual order (see the
+/// module's documentation); equal scores keep their order.
+fn by_eye(candidates: &[Candidate], albedo: &Image, steps: usize) -> Vec<usize> {
     let (w, h) = (albedo.width, albedo.height);
     let stride = grid_stride(w * h);
     let grid: Vec<usize> = (stride / 2..h)
@@ -83,7 +93,7 @@ fn by_eye(candidates: &[Candidate], albedo: &Image) -> Vec<usize> {
     let mut painted_by = vec![BASE; grid.len()];
     let mut taken = vec![false; candidates.len()];
     let mut order = Vec::with_capacity(candidates.len());
-    for _ in 0..candidates.len() {
+    for _ in 0..steps.min(candidates.len()) {
         let base = mean(
             (0..grid.len())
                 .filter(|&g| painted_by[g] == BASE)
@@ -202,7 +212,7 @@ mod tests {
                 gain: 1.0,
             },
         ];
-        let order = perceptual_order(candidates, &albedo);
+        let order = perceptual_order(candidates, &albedo, 3);
         let areas: Vec<usize> = order.iter().map(|c| c.mask.area()).collect();
         assert_eq!(
             areas,
@@ -241,6 +251,16 @@ mod tests {
             })
             .collect();
         // The inner square is red like the half around it: once that is taken it adds nothing.
-        assert_eq!(by_eye(&candidates, &albedo), [1, 2, 0], "red, dot, inner");
+        assert_eq!(
+            by_eye(&candidates, &albedo, 3),
+            [1, 2, 0],
+            "red, dot, inner"
+        );
+        // Past the steps asked for, the given order.
+        let areas: Vec<usize> = perceptual_order(candidates, &albedo, 1)
+            .iter()
+            .map(|c| c.mask.area())
+            .collect();
+        assert_eq!(areas, [red.area(), inner.area(), dot.area()]);
     }
 }
