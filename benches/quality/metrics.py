@@ -4,7 +4,7 @@ GMSD follows the authors' GMSD.m on Octave's rgb2gray luma (0-255), as covec::pe
 does; `metrics.py --check FIXTURES` verifies it against the Octave values that
 tests/perceptual_reference.rs holds. Usage: metrics.py REF.png RENDER.png... (one "mse gmsd"
 line per render)."""
-import sys, re, os, numpy as np
+import sys, numpy as np
 from PIL import Image
 def flat(p):
     im = Image.open(p).convert("RGBA"); bg = Image.new("RGBA", im.size, (255,255,255,255)); bg.alpha_composite(im)
