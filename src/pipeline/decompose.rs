@@ -2,6 +2,8 @@
 //! from the client's network outputs when given, else from the classical substitutes of
 //! [`crate::decompose`]; and `auto` resolved.
 
+use rayon::prelude::*;
+
 use super::params::{Inputs, Masks, Mode, Params, ResolvedMode};
 use crate::decompose::look::{ANALYSIS_SIZE, Look, look};
 use crate::decompose::mask::Mask;
@@ -82,11 +84,13 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
         Masks::Labels(labels) => Some(label_masks(labels, w, h)),
     };
     let masks_given = given.is_some();
+    // Filling holes and splitting components, candidate by candidate on rayon's pool: on one
+    // thread it took about 4 % of a 1024² run's CPU time while the other core waited.
     let candidates = match given {
         Some(given) => {
             let prepared = given
-                .iter()
-                .flat_map(|m| m.fill_holes().components(min_area))
+                .par_iter()
+                .flat_map_iter(|m| m.fill_holes().components(min_area))
                 .collect();
             score_masks(prepared, &albedo)
         }
@@ -100,11 +104,11 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
                 ResolvedMode::Simple => Sides::Smaller,
             },
         )
-        .into_iter()
+        .into_par_iter()
         .filter(|c| {
             mode == ResolvedMode::Simple || inputs.albedo.is_some() || c.gain >= MIN_ALBEDO_GAIN
         })
-        .flat_map(|c| {
+        .flat_map_iter(|c| {
             c.mask
                 .fill_holes()
                 .components(min_area)
