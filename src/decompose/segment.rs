@@ -489,4 +489,20 @@ mod tests {
         assert!(!segment(&image, 100, Sides::Smaller).iter().any(is_face));
         assert!(segment(&image, 100, Sides::Both).iter().any(is_face));
     }
+
+    #[test]
+    fn both_sides_leave_out_a_larger_side_that_spans_the_canvas() {
+        // A light square on a dark backdrop: the backdrop is the larger side of the last merge,
+        // and it reaches all four edges, where the canvas-wide base path paints it already.
+        let (w, h) = (40, 40);
+        let mut image = Image::filled(w, h, [0.1; 3]);
+        for y in 12..28 {
+            for x in 12..28 {
+                image.data[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[0.9; 3]);
+            }
+        }
+        let candidates = segment(&image, 10, Sides::Both);
+        assert!(candidates.iter().any(|c| c.mask.area() >= 200));
+        assert!(candidates.iter().all(|c| c.mask.bbox() != [0, 0, w, h]));
+    }
 }
