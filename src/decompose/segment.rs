@@ -46,7 +46,7 @@ pub fn segment(image: &Image, count: usize, sides: Sides) -> Vec<Candidate> {
     let (w, h) = (image.width, image.height);
     let min_size = (w * h / 3000).max(4);
     let labels = felzenszwalb(&blur(image), FELZENSZWALB_K, min_size);
-    let merges = ward_merges(image, &labels);
+    let (merges, regions) = ward_merges(image, &labels);
     // The pixels of each superpixel, grouped by a counting sort: a mask then costs its own
     // area to build, not the canvas's.
     let superpixels = labels.iter().max().map_or(0, |&m| m as usize + 1);
@@ -63,11 +63,11 @@ pub fn segment(image: &Image, count: usize, sides: Sides) -> Vec<Candidate> {
         pixels[fill[label as usize]] = i;
         fill[label as usize] += 1;
     }
-    let candidate = |superpixels: &BTreeSet<u32>, gain| Candidate {
+    let candidate = |region: usize, gain| Candidate {
         mask: Mask::from_indices(
             w,
             h,
-            superpixels
+            regions[region]
                 .iter()
                 .flat_map(|&label| &pixels[starts[label as usize]..starts[label as usize + 1]]),
         ),
@@ -79,17 +79,18 @@ pub fn segment(image: &Image, count: usize, sides: Sides) -> Vec<Candidate> {
         .take(count)
         .flat_map(|m| {
             let larger = (sides == Sides::Both)
-                .then(|| candidate(&m.larger, m.cost))
+                .then(|| candidate(m.larger, m.cost))
                 .filter(|c| c.mask.bbox() != [0, 0, w, h]);
-            std::iter::once(candidate(&m.smaller, m.cost)).chain(larger)
+            std::iter::once(candidate(m.smaller, m.cost)).chain(larger)
         })
         .collect()
 }
 
-/// One merge of the Ward hierarchy: the superpixels of its two sides, and its cost.
+/// One merge of the Ward hierarchy: its two sides (region ids, see [`ward_merges`]) and its
+/// cost.
 struct Merge {
-    smaller: BTreeSet<u32>,
-    larger: BTreeSet<u32>,
+    smaller: usize,
+    larger: usize,
     cost: f32,
 }
 
@@ -295,8 +296,11 @@ fn ward_cost(a: &Region, b: &Region) -> f64 {
     a.count * b.count / (a.count + b.count) * d2
 }
 
-/// Merges adjacent regions cheapest first until one is left; returns the merges in order.
-fn ward_merges(image: &Image, labels: &[u32]) -> Vec<Merge> {
+/// Merges adjacent regions cheapest first until one is left. Returns the merges in order and
+/// the superpixels of every region by id: the superpixels first, then each merge's result.
+/// Merges name their sides by id rather than holding copies of their sets: every merge
+/// happens, but only the last few become candidates.
+fn ward_merges(image: &Image, labels: &[u32]) -> (Vec<Merge>, Vec<BTreeSet<u32>>) {
     let (w, h) = (image.width, image.height);
     let n = labels.iter().max().map_or(0, |&m| m as usize + 1);
     let mut regions: Vec<Region> = (0..n)
@@ -352,8 +356,8 @@ fn ward_merges(image: &Image, labels: &[u32]) -> Vec<Merge> {
             b
         };
         merges.push(Merge {
-            smaller: regions[small].superpixels.clone(),
-            larger: regions[a + b - small].superpixels.clone(),
+            smaller: small,
+            larger: a + b - small,
             cost: cost as f32,
         });
         // The merged region takes a fresh id, so heap entries naming a or b go stale.
@@ -385,7 +389,8 @@ fn ward_merges(image: &Image, labels: &[u32]) -> Vec<Merge> {
             heap.push((key(cost), Reverse(m), Reverse(id)));
         }
     }
-    merges
+    let superpixels = regions.into_iter().map(|r| r.superpixels).collect();
+    (merges, superpixels)
 }
 
 #[cfg(test)]
