@@ -116,25 +116,53 @@ impl StoreError {
     }
 }
 
-/// Whether an object-store request failed on its connection (refused, reset, timed out):
-/// an [`HttpError`](object_store::client::HttpError) of that kind among the error's sources.
-/// Anything the store answered (a missing bucket, a refused signature) is not.
+/// Whether an object-store request failed on its connection (refused, reset, closed, timed
+/// out): an [`HttpError`](object_store::client::HttpError) among the error's sources, of a
+/// connection kind or, when object_store could not tell its kind, caused by a connection's
+/// failure. Anything the store answered (a missing bucket, a refused signature) is not.
 fn store_unreachable(error: &object_store::Error) -> bool {
     use object_store::client::{HttpError, HttpErrorKind};
-    let mut source: Option<&(dyn std::error::Error + 'static)> = Some(error);
-    while let Some(error) = source {
-        if let Some(http) = error.downcast_ref::<HttpError>() {
-            return matches!(
-                http.kind(),
-                HttpErrorKind::Connect
-                    | HttpErrorKind::Request
-                    | HttpErrorKind::Timeout
-                    | HttpErrorKind::Interrupted
-            );
-        }
-        source = error.source();
+    let Some(http) = sources(error).find_map(|error| error.downcast_ref::<HttpError>()) else {
+        return false;
+    };
+    match http.kind() {
+        HttpErrorKind::Connect
+        | HttpErrorKind::Request
+        | HttpErrorKind::Timeout
+        | HttpErrorKind::Interrupted => true,
+        // A fresh connection closed before the request went out (a store going down accepts
+        // and drops connections) is hyper's "canceled", which object_store leaves unknown.
+        HttpErrorKind::Unknown => sources(http).any(connection_failed),
+        _ => false,
     }
-    false
+}
+
+/// `error` and its sources, outermost first.
+fn sources<'a>(
+    error: &'a (dyn std::error::Error + 'static),
+) -> impl Iterator<Item = &'a (dyn std::error::Error + 'static)> {
+    std::iter::successors(Some(error), |error| error.source())
+}
+
+/// Whether `error` is a connection's failure: closed or canceled before an answer came (hyper),
+/// or refused, reset, cut or timed out (the socket's own error).
+fn connection_failed(error: &(dyn std::error::Error + 'static)) -> bool {
+    use std::io::ErrorKind;
+    if let Some(error) = error.downcast_ref::<hyper::Error>() {
+        return error.is_canceled() || error.is_closed() || error.is_incomplete_message();
+    }
+    error.downcast_ref::<std::io::Error>().is_some_and(|error| {
+        matches!(
+            error.kind(),
+            ErrorKind::ConnectionRefused
+                | ErrorKind::ConnectionReset
+                | ErrorKind::ConnectionAborted
+                | ErrorKind::NotConnected
+                | ErrorKind::BrokenPipe
+                | ErrorKind::UnexpectedEof
+                | ErrorKind::TimedOut
+        )
+    })
 }
 
 /// Out of file descriptors (`EMFILE`, `ENFILE`), for which std has no error kind.
@@ -211,4 +239,79 @@ pub fn with_sources(error: &dyn std::error::Error) -> String {
         source = cause.source();
     }
     line
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use object_store::client::{HttpError, HttpErrorKind};
+
+    /// An object-store error as object_store reports a transport failure: `source` under an
+    /// [`HttpError`] of `kind`.
+    fn transport_error(
+        kind: HttpErrorKind,
+        source: impl std::error::Error + Send + Sync + 'static,
+    ) -> StoreError {
+        StoreError::ObjectStore(object_store::Error::Generic {
+            store: "S3",
+            source: Box::new(HttpError::new(kind, source)),
+        })
+    }
+
+    /// hyper's error for a request that never went out because its connection was gone.
+    fn canceled_request() -> hyper::Error {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .unwrap();
+        runtime.block_on(async {
+            let (client, _server) = tokio::io::duplex(64);
+            let (mut sender, connection) = hyper::client::conn::http1::handshake::<
+                _,
+                http_body_util::Empty<&'static [u8]>,
+            >(hyper_util::rt::TokioIo::new(client))
+            .await
+            .unwrap();
+            drop(connection);
+            let request = hyper::Request::new(http_body_util::Empty::new());
+            sender.send_request(request).await.unwrap_err()
+        })
+    }
+
+    /// The CI failure of the object-store outage test (service_s3): a job's input read on a
+    /// connection the store closed at once ended as an unknown transport error, was taken
+    /// for a lasting one, and the job failed instead of waiting for the store.
+    #[test]
+    fn a_request_canceled_by_a_closed_connection_is_worth_a_retry() {
+        let canceled = canceled_request();
+        assert!(canceled.is_canceled(), "{canceled:?}");
+        assert!(transport_error(HttpErrorKind::Unknown, canceled).is_transient());
+    }
+
+    #[test]
+    fn transport_errors_are_transient_by_kind_or_cause() {
+        use std::io::{Error, ErrorKind};
+        for kind in [
+            HttpErrorKind::Connect,
+            HttpErrorKind::Request,
+            HttpErrorKind::Timeout,
+            HttpErrorKind::Interrupted,
+        ] {
+            let error = transport_error(kind, Error::other("x"));
+            assert!(error.is_transient(), "{kind:?}");
+        }
+        let reset = Error::from(ErrorKind::ConnectionReset);
+        assert!(transport_error(HttpErrorKind::Unknown, reset).is_transient());
+        // An unknown failure that is not the connection's, and a body that would not decode,
+        // are not the moment's.
+        let denied = Error::from(ErrorKind::PermissionDenied);
+        assert!(!transport_error(HttpErrorKind::Unknown, denied).is_transient());
+        let garbled = Error::from(ErrorKind::ConnectionReset);
+        assert!(!transport_error(HttpErrorKind::Decode, garbled).is_transient());
+        // What the store answered is no transport error at all.
+        let missing = StoreError::ObjectStore(object_store::Error::NotFound {
+            path: "jobs/x".into(),
+            source: Box::new(Error::other("404")),
+        });
+        assert!(!missing.is_transient());
+    }
 }
