@@ -4,7 +4,9 @@
 //! Prints medians of `COVEC_BENCH_RUNS` runs (default 21) after one warm-up, on 1 and 2 rayon
 //! threads. As in the DiffVG note, 1-thread figures are CPU time of the (single) worker thread,
 //! which a busy shared machine barely disturbs, and 2-thread figures are wall time. tiny-skia is
-//! single-threaded; its CPU time is measured once per scene and every ratio is against it.
+//! single-threaded (CPU time). Each round times tiny-skia, our forward and our forward +
+//! backward in turn, and every ratio printed is the median of the rounds' ratios: a shared
+//! machine's speed drifts between rounds, far less within one.
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -202,26 +204,22 @@ fn thread_cpu_ms() -> f64 {
     ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6
 }
 
-/// Median over `runs` runs of `f` after one warm-up: thread CPU time when the current rayon
-/// pool has one thread (all work runs on this thread), wall time otherwise.
-fn median_ms(runs: usize, mut f: impl FnMut()) -> f64 {
-    f();
-    let cpu = rayon::current_num_threads() == 1;
-    let mut times: Vec<f64> = (0..runs)
-        .map(|_| {
-            if cpu {
-                let t = thread_cpu_ms();
-                f();
-                thread_cpu_ms() - t
-            } else {
-                let t = Instant::now();
-                f();
-                t.elapsed().as_secs_f64() * 1e3
-            }
-        })
-        .collect();
-    times.sort_by(f64::total_cmp);
-    times[times.len() / 2]
+/// One call of `f`, in ms: CPU time of the calling thread when `cpu`, wall time otherwise.
+fn time_ms(cpu: bool, f: impl FnOnce()) -> f64 {
+    if cpu {
+        let t = thread_cpu_ms();
+        f();
+        thread_cpu_ms() - t
+    } else {
+        let t = Instant::now();
+        f();
+        t.elapsed().as_secs_f64() * 1e3
+    }
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
 }
 
 fn tiny_skia_paths(paths: &[Path]) -> Vec<(tiny_skia::Path, tiny_skia::Paint<'static>)> {
@@ -249,23 +247,31 @@ fn tiny_skia_paths(paths: &[Path]) -> Vec<(tiny_skia::Path, tiny_skia::Paint<'st
         .collect()
 }
 
+/// Medians over the rounds of a scene's times (ms) and of each round's ratios.
 struct Timing {
     forward: f64,
     forward_backward: f64,
+    tiny_skia: f64,
+    /// forward / tiny-skia, (forward + backward) / tiny-skia, backward / forward.
+    forward_ratio: f64,
+    forward_backward_ratio: f64,
+    backward_ratio: f64,
 }
 
-/// Our forward and forward+backward (with an MSE-style d_out against a gradient target) on the
-/// current rayon pool.
-fn time_covec(paths: &[Path], size: usize, runs: usize) -> Timing {
+/// `runs` rounds after one warm-up, each timing tiny-skia's fill, our forward, and our forward
+/// and backward (with an MSE-style d_out against a gradient target) one after the other, so
+/// that each ratio compares runs a moment apart and a shared machine's drifts cancel. Ours run on the
+/// current rayon pool (CPU time of this thread on a pool of one, wall time otherwise);
+/// tiny-skia, single-threaded, on this thread, CPU time.
+fn time_scene(paths: &[Path], size: usize, runs: usize) -> Timing {
+    let cpu = rayon::current_num_threads() == 1;
     let base = [1.0; 3];
     let mut raster = Rasterizer::new();
     let mut image = Image::default();
     let mut d_out = Image::filled(size, size, [0.0; 3]);
     let mut grads = PathGrad::zeros_like(paths);
-    let forward = median_ms(runs, || {
-        raster.render(paths, base, size, size, &mut image);
-        black_box(&image);
-    });
+    let shapes = tiny_skia_paths(paths);
+    let mut pixmap = tiny_skia::Pixmap::new(size as u32, size as u32).expect("pixmap");
     // The MSE gradient against DiffVG's target (R = x ramp, G = y ramp, B = ½), as an
     // optimisation step computes it.
     let scale = 2.0 / (3 * size * size) as f32;
@@ -273,41 +279,50 @@ fn time_covec(paths: &[Path], size: usize, runs: usize) -> Timing {
     let target: Vec<f32> = (0..size * size)
         .flat_map(|i| [ramp(i % size), ramp(i / size), 0.5])
         .collect();
-    let forward_backward = median_ms(runs, || {
-        raster.render(paths, base, size, size, &mut image);
-        for ((d, &v), &t) in d_out.data.iter_mut().zip(&image.data).zip(&target) {
-            *d = scale * (v - t);
-        }
-        for g in grads.iter_mut() {
-            g.points.fill(Point::default());
-            g.color = [0.0; 3];
-            g.opacity = 0.0;
-        }
-        raster.backward(paths, base, &d_out, &mut grads);
-        black_box(&grads);
-    });
+    let mut round = || {
+        let skia = time_ms(true, || {
+            pixmap.fill(tiny_skia::Color::WHITE);
+            for (path, paint) in &shapes {
+                pixmap.fill_path(
+                    path,
+                    paint,
+                    tiny_skia::FillRule::Winding,
+                    tiny_skia::Transform::identity(),
+                    None,
+                );
+            }
+            black_box(&pixmap);
+        });
+        let forward = time_ms(cpu, || {
+            raster.render(paths, base, size, size, &mut image);
+            black_box(&image);
+        });
+        let forward_backward = time_ms(cpu, || {
+            raster.render(paths, base, size, size, &mut image);
+            for ((d, &v), &t) in d_out.data.iter_mut().zip(&image.data).zip(&target) {
+                *d = scale * (v - t);
+            }
+            for g in grads.iter_mut() {
+                g.points.fill(Point::default());
+                g.color = [0.0; 3];
+                g.opacity = 0.0;
+            }
+            raster.backward(paths, base, &d_out, &mut grads);
+            black_box(&grads);
+        });
+        [skia, forward, forward_backward]
+    };
+    round();
+    let rounds: Vec<[f64; 3]> = (0..runs).map(|_| round()).collect();
+    let of = |f: fn(&[f64; 3]) -> f64| median(rounds.iter().map(f).collect());
     Timing {
-        forward,
-        forward_backward,
+        tiny_skia: of(|r| r[0]),
+        forward: of(|r| r[1]),
+        forward_backward: of(|r| r[2]),
+        forward_ratio: of(|r| r[1] / r[0]),
+        forward_backward_ratio: of(|r| r[2] / r[0]),
+        backward_ratio: of(|r| (r[2] - r[1]) / r[1]),
     }
-}
-
-fn time_tiny_skia(paths: &[Path], size: usize, runs: usize) -> f64 {
-    let shapes = tiny_skia_paths(paths);
-    let mut pixmap = tiny_skia::Pixmap::new(size as u32, size as u32).expect("pixmap");
-    median_ms(runs, || {
-        pixmap.fill(tiny_skia::Color::WHITE);
-        for (path, paint) in &shapes {
-            pixmap.fill_path(
-                path,
-                paint,
-                tiny_skia::FillRule::Winding,
-                tiny_skia::Transform::identity(),
-                None,
-            );
-        }
-        black_box(&pixmap);
-    })
 }
 
 fn pool(threads: usize) -> rayon::ThreadPool {
@@ -328,28 +343,28 @@ fn main() {
         .unwrap_or(21);
     check_diffvg_generator();
     println!(
-        "median of {runs} runs after one warm-up; ms; 1 thread: CPU time, 2 threads: wall time; tiny-skia: fill_path AA, non-zero, 1 thread (CPU time)\n"
+        "medians of {runs} rounds after one warm-up, each round tiny-skia, covec fwd, covec fwd+bwd in turn; ratios are medians of each round's; ms; 1 thread: CPU time, 2 threads: wall time; tiny-skia: fill_path AA, non-zero, 1 thread (CPU time)\n"
     );
 
     println!(
-        "| scene | threads | covec fwd | covec fwd+bwd | tiny-skia fill | fwd / tiny-skia | fwd+bwd / tiny-skia |"
+        "| scene | threads | covec fwd | covec fwd+bwd | tiny-skia fill | fwd / tiny-skia | fwd+bwd / tiny-skia | bwd / fwd |"
     );
-    println!("|---|---|---:|---:|---:|---:|---:|");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|");
     for (size, n) in [(256usize, 64usize), (512, 256)] {
         if !wanted(&format!("blobs-{size}-{n}")) {
             continue;
         }
         let paths = blob_scene(size, n, 42);
-        let skia = pool(1).install(|| time_tiny_skia(&paths, size, runs));
         for threads in [1, 2] {
-            let t = pool(threads).install(|| time_covec(&paths, size, runs));
+            let t = pool(threads).install(|| time_scene(&paths, size, runs));
             println!(
-                "| blobs {size}² × {n} | {threads} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
+                "| blobs {size}² × {n} | {threads} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
                 t.forward,
                 t.forward_backward,
-                skia,
-                t.forward / skia,
-                t.forward_backward / skia
+                t.tiny_skia,
+                t.forward_ratio,
+                t.forward_backward_ratio,
+                t.backward_ratio
             );
         }
     }
@@ -364,22 +379,22 @@ fn main() {
         "\nDiffVG scenes (SplitMix64 seed 1234; covec fills non-zero, DiffVG even-odd: same geometry and work, different images)\n"
     );
     println!(
-        "| scene | threads | covec fwd | covec fwd+bwd | tiny-skia fill | DiffVG fwd (2×2) | DiffVG fwd+bwd (2×2) | DiffVG / covec (fwd+bwd) |"
+        "| scene | threads | covec fwd | covec fwd+bwd | tiny-skia fill | bwd / fwd | DiffVG fwd (2×2) | DiffVG fwd+bwd (2×2) | DiffVG / covec (fwd+bwd) |"
     );
-    println!("|---|---|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for ((size, n), d) in diffvg {
         if !wanted(&format!("diffvg-{size}-{n}")) {
             continue;
         }
         let paths = diffvg_scene(size, n);
-        let skia = pool(1).install(|| time_tiny_skia(&paths, size, runs));
         for (threads, (df, db)) in [(1, (d[0], d[1])), (2, (d[2], d[3]))] {
-            let t = pool(threads).install(|| time_covec(&paths, size, runs));
+            let t = pool(threads).install(|| time_scene(&paths, size, runs));
             println!(
-                "| DiffVG {size}² × {n} | {threads} | {:.1} | {:.1} | {:.1} | {df:.0} | {:.0} | {:.0}× |",
+                "| DiffVG {size}² × {n} | {threads} | {:.1} | {:.1} | {:.1} | {:.2} | {df:.0} | {:.0} | {:.0}× |",
                 t.forward,
                 t.forward_backward,
-                skia,
+                t.tiny_skia,
+                t.backward_ratio,
                 df + db,
                 (df + db) / t.forward_backward
             );
