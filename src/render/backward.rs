@@ -28,10 +28,8 @@ use super::{
 use crate::scene::Path;
 
 /// Target size of one pass's signed-area buffer: about a core's L2 cache. Each pass scan-converts
-/// and walks the edges of every path meeting it, so thinner passes repeat that work: on
-/// DiffVG's 512² × 256 scene (1.25 MiB of L2 a core), 2 MiB (4-row passes) took the backward
-/// from 3.05× to 2.83× the forward against 1 MiB (2-row passes), medians of 6 runs in turn;
-/// 4 MiB gained nothing more.
+/// and walks the edges of every path meeting it, so thinner passes repeat that work; on the
+/// worst case, 2 MiB beat both 1 MiB and 4 MiB (docs/benchmarks.md, "The renderer").
 const PASS_AREA_BYTES: f64 = 2.0 * 1024.0 * 1024.0;
 
 /// `|acc|` up to which coverage counts as unsaturated in the backward. Above 1 the forward's
