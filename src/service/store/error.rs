@@ -227,16 +227,14 @@ pub(super) fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError
 
 /// `error` and its sources on one line: tokio-postgres and deadpool keep the server's words
 /// (a refused login, a certificate that does not match) in the sources, not in the message.
-pub fn with_sources(error: &dyn std::error::Error) -> String {
+pub fn with_sources(error: &(dyn std::error::Error + 'static)) -> String {
     let mut line = error.to_string();
-    let mut source = error.source();
-    while let Some(cause) = source {
+    for cause in sources(error).skip(1) {
         let words = cause.to_string();
         if !line.ends_with(&words) {
             line.push_str(": ");
             line.push_str(&words);
         }
-        source = cause.source();
     }
     line
 }
