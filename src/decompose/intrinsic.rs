@@ -29,6 +29,8 @@
 //! join; a darker object whose colour differs from its lighter neighbour's exactly by the
 //! shadow shift joins it.
 
+use rayon::prelude::*;
+
 use super::albedo::intensity;
 use super::segment::{DisjointSets, blur, felzenszwalb};
 use crate::render::Image;
@@ -101,10 +103,14 @@ pub fn albedo_map(image: &Image) -> Image {
     };
     let labels = felzenszwalb(&blur(&corrected), SUPERPIXEL_K, (w * h / 4000).max(4));
     let groups = group_surfaces(&corrected, &labels, illuminant);
+    let surfaces = surfaces(&groups);
+    let colours: Vec<[f32; 3]> = surfaces
+        .par_iter()
+        .map(|members| lit_colour(image, members))
+        .collect();
     let mut map = image.clone();
-    for members in surfaces(&groups) {
-        let colour = lit_colour(image, &members);
-        for &i in &members {
+    for (members, colour) in surfaces.iter().zip(colours) {
+        for &i in members {
             map.data[3 * i..3 * i + 3].copy_from_slice(&colour);
         }
     }
@@ -470,31 +476,42 @@ fn specular_excess(colour: [f32; 3], body: [f32; 3], white: [f32; 3]) -> Option<
     (residual <= DICHROMATIC_RESIDUAL).then_some(residual)
 }
 
-/// The pixel indices of each surface.
+/// The pixel indices of each surface, surfaces in the order of their first pixel. Roots are
+/// superpixel ids, so a table indexed by root finds a surface's slot (a hash map per pixel
+/// cost a tenth of a 1024² map's time).
 fn surfaces(groups: &Groups) -> Vec<Vec<usize>> {
-    let mut index = std::collections::HashMap::new();
+    let roots = groups.root.iter().max().map_or(0, |&r| r + 1);
+    let mut slot = vec![usize::MAX; roots];
     let mut out: Vec<Vec<usize>> = Vec::new();
     for (i, &root) in groups.root.iter().enumerate() {
-        let k = *index.entry(root).or_insert_with(|| {
+        if slot[root] == usize::MAX {
+            slot[root] = out.len();
             out.push(Vec::new());
-            out.len() - 1
-        });
-        out[k].push(i);
+        }
+        out[slot[root]].push(i);
     }
     out
 }
 
-/// Mean colour of the pixels of `members` between the [`LIT_PERCENTILES`] of luminance.
+/// Mean colour of the pixels of `members` between the [`LIT_PERCENTILES`] of luminance, in
+/// order of luminance, then pixel index (`members` ascends). Only the pixels between the
+/// percentiles are sorted: two selections find them, in a fifth of a full sort's time.
 fn lit_colour(image: &Image, members: &[usize]) -> [f32; 3] {
     let pixel = |i: usize| [0, 1, 2].map(|c| image.data[3 * i + c]);
     let mut by_luminance: Vec<(f32, usize)> =
         members.iter().map(|&i| (intensity(pixel(i)), i)).collect();
-    by_luminance.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let order = |a: &(f32, usize), b: &(f32, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
     let n = by_luminance.len();
     let lo = ((n as f32 * LIT_PERCENTILES.0) as usize).min(n - 1);
     let hi = ((n as f32 * LIT_PERCENTILES.1) as usize).clamp(lo + 1, n);
+    by_luminance.select_nth_unstable_by(lo, order);
+    if hi < n {
+        by_luminance[lo..].select_nth_unstable_by(hi - lo, order);
+    }
+    let lit = &mut by_luminance[lo..hi];
+    lit.sort_unstable_by(order);
     let mut sum = [0f64; 3];
-    for &(_, i) in &by_luminance[lo..hi] {
+    for &(_, i) in lit.iter() {
         for (s, v) in sum.iter_mut().zip(pixel(i)) {
             *s += f64::from(v);
         }
@@ -507,6 +524,42 @@ mod tests {
     use super::*;
     use crate::synth::scale_invariant_mse;
     use crate::synth::scenes::{scene, scene_names};
+
+    #[test]
+    fn the_lit_colour_is_that_of_a_full_stable_sort() {
+        // Few grey levels, so many pixels tie in luminance across the percentile bounds.
+        let mut state = 7u64;
+        let data: Vec<f32> = (0..3 * 997)
+            .map(|_| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (state >> 61) as f32 / 8.0
+            })
+            .collect();
+        let image = Image {
+            width: 997,
+            height: 1,
+            data,
+        };
+        let pixel = |i: usize| [0, 1, 2].map(|c| image.data[3 * i + c]);
+        for members in [(0..997).collect::<Vec<_>>(), (0..997).step_by(3).collect(), vec![5]] {
+            let mut sorted: Vec<(f32, usize)> =
+                members.iter().map(|&i| (intensity(pixel(i)), i)).collect();
+            sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let n = sorted.len();
+            let lo = ((n as f32 * LIT_PERCENTILES.0) as usize).min(n - 1);
+            let hi = ((n as f32 * LIT_PERCENTILES.1) as usize).clamp(lo + 1, n);
+            let mut sum = [0f64; 3];
+            for &(_, i) in &sorted[lo..hi] {
+                for (s, v) in sum.iter_mut().zip(pixel(i)) {
+                    *s += f64::from(v);
+                }
+            }
+            let expected = sum.map(|s| (s / (hi - lo) as f64) as f32);
+            assert_eq!(lit_colour(&image, &members), expected);
+        }
+    }
 
     #[test]
     fn a_warm_light_is_estimated_warm() {
