@@ -206,29 +206,41 @@ impl EdgeKey {
         (slot / 4, slot / 4 + steps[slot % 4])
     }
 
-    /// `edges`, listed in increasing slot order, ordered by weight then slot: a least
-    /// significant digit radix sort on the weight's bits, stable, so slots stay in order.
+    /// `edges`, listed in increasing slot order, ordered by weight then slot: zero weights
+    /// (flat areas, most of an albedo map's edges) are already in order and go first; the rest
+    /// by a least significant digit radix sort on the weight's bits, stable, so slots stay in
+    /// order.
     fn sort(mut edges: Vec<Self>) -> Vec<Self> {
-        let mut spare = vec![Self(0); edges.len()];
+        let weighted = edges.iter().filter(|e| e.0 >> 32 != 0).count();
+        let mut rest = Vec::with_capacity(weighted);
+        edges.retain(|&e| {
+            let zero = e.0 >> 32 == 0;
+            if !zero {
+                rest.push(e);
+            }
+            zero
+        });
+        let mut spare = vec![Self(0); rest.len()];
         for shift in (32..64).step_by(8) {
             let digit = |e: &Self| (e.0 >> shift) as usize & 0xff;
             let mut starts = [0usize; 257];
-            for e in &edges {
+            for e in &rest {
                 starts[digit(e) + 1] += 1;
             }
-            if starts.contains(&edges.len()) {
+            if starts.contains(&rest.len()) {
                 continue; // every key has this digit: the pass would not move anything
             }
             for d in 0..256 {
                 starts[d + 1] += starts[d];
             }
-            for &e in &edges {
+            for &e in &rest {
                 let d = digit(&e);
                 spare[starts[d]] = e;
                 starts[d] += 1;
             }
-            std::mem::swap(&mut edges, &mut spare);
+            std::mem::swap(&mut rest, &mut spare);
         }
+        edges.extend(rest);
         edges
     }
 }
