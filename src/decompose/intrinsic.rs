@@ -543,7 +543,11 @@ mod tests {
             data,
         };
         let pixel = |i: usize| [0, 1, 2].map(|c| image.data[3 * i + c]);
-        for members in [(0..997).collect::<Vec<_>>(), (0..997).step_by(3).collect(), vec![5]] {
+        for members in [
+            (0..997).collect::<Vec<_>>(),
+            (0..997).step_by(3).collect(),
+            vec![5],
+        ] {
             let mut sorted: Vec<(f32, usize)> =
                 members.iter().map(|&i| (intensity(pixel(i)), i)).collect();
             sorted.sort_by(|a, b| a.0.total_cmp(&b.0));

@@ -349,9 +349,11 @@ impl<'a> Optimisation<'a> {
 
     fn polish(&mut self, stage: &StageRun) -> Result<(), Error> {
         let total = self.params.iterations.polish;
-        let coarse_count = self.coarse_count(
-            ((total as f32 * self.settings.coarse.polish_share).round() as u32).min(total),
-        );
+        let coarse_count = self.coarse_count(self.settings.coarse.polish_coarse(
+            total,
+            self.target.width,
+            self.target.height,
+        ));
         let (settings, structure) = (&self.settings.polish, &self.settings.structure);
         let weight = settings.similarity_weight(self.target.width * self.target.height);
         let full_loss = PolishLoss::new(&self.target, weight);

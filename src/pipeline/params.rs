@@ -100,7 +100,8 @@ pub struct Iterations {
     pub refine: u32,
     /// Final joint polish under the exact SVG model. Default 160, of which the first 3/4 run at
     /// reduced size on images of 128 px and more (`CoarseSettings::polish_share`), so 40 at full
-    /// size: with a flat albedo map and split segments much is left to fit jointly.
+    /// size (fewer above 512 px, `CoarseSettings::polish_fine_side`): with a flat albedo map
+    /// and split segments much is left to fit jointly.
     pub polish: u32,
 }
 
