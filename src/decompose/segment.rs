@@ -209,39 +209,48 @@ impl EdgeKey {
     /// `edges`, listed in increasing slot order, ordered by weight then slot: zero weights
     /// (flat areas, most of an albedo map's edges) are already in order and go first; the rest
     /// by a least significant digit radix sort on the weight's bits, stable, so slots stay in
-    /// order.
-    fn sort(mut edges: Vec<Self>) -> Vec<Self> {
-        let weighted = edges.iter().filter(|e| e.0 >> 32 != 0).count();
-        let mut rest = Vec::with_capacity(weighted);
-        edges.retain(|&e| {
-            let zero = e.0 >> 32 == 0;
-            if !zero {
-                rest.push(e);
-            }
-            zero
-        });
-        let mut spare = vec![Self(0); rest.len()];
+    /// order. Two buffers of the edges' size, as a radix sort of all of them needs.
+    fn sort(edges: Vec<Self>) -> Vec<Self> {
+        let is_zero = |e: &Self| e.0 >> 32 == 0;
+        let zeros = edges.iter().filter(|e| is_zero(e)).count();
+        let mut sorted = vec![Self(0); edges.len()];
+        let (mut next_zero, mut next_weighted) = (0, zeros);
+        for &e in &edges {
+            let next = if is_zero(&e) {
+                &mut next_zero
+            } else {
+                &mut next_weighted
+            };
+            sorted[*next] = e;
+            *next += 1;
+        }
+        let mut spare = edges;
+        let (mut from, mut to) = (&mut sorted[zeros..], &mut spare[zeros..]);
+        let mut in_spare = false;
         for shift in (32..64).step_by(8) {
             let digit = |e: &Self| (e.0 >> shift) as usize & 0xff;
             let mut starts = [0usize; 257];
-            for e in &rest {
+            for e in from.iter() {
                 starts[digit(e) + 1] += 1;
             }
-            if starts.contains(&rest.len()) {
+            if starts.contains(&from.len()) {
                 continue; // every key has this digit: the pass would not move anything
             }
             for d in 0..256 {
                 starts[d + 1] += starts[d];
             }
-            for &e in &rest {
+            for &e in from.iter() {
                 let d = digit(&e);
-                spare[starts[d]] = e;
+                to[starts[d]] = e;
                 starts[d] += 1;
             }
-            std::mem::swap(&mut rest, &mut spare);
+            std::mem::swap(&mut from, &mut to);
+            in_spare = !in_spare;
         }
-        edges.extend(rest);
-        edges
+        if in_spare {
+            sorted[zeros..].copy_from_slice(&spare[zeros..]);
+        }
+        sorted
     }
 }
 
