@@ -477,8 +477,8 @@ fn specular_excess(colour: [f32; 3], body: [f32; 3], white: [f32; 3]) -> Option<
 }
 
 /// The pixel indices of each surface, surfaces in the order of their first pixel. Roots are
-/// superpixel ids, so a table indexed by root finds a surface's slot (a hash map per pixel
-/// cost a tenth of a 1024² map's time).
+/// superpixel ids, so a table indexed by root finds a surface's slot, with no hashing per
+/// pixel.
 fn surfaces(groups: &Groups) -> Vec<Vec<usize>> {
     let roots = groups.root.iter().max().map_or(0, |&r| r + 1);
     let mut slot = vec![usize::MAX; roots];
