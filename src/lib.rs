@@ -32,6 +32,7 @@ pub mod render;
 pub mod scene;
 #[cfg(feature = "service")]
 pub mod service;
+mod simd;
 pub mod svg;
 pub mod synth;
 #[cfg(feature = "service")]

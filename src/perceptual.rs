@@ -9,6 +9,7 @@
 //! GNU Octave to 1e-6 (`tests/perceptual_reference.rs`).
 
 use crate::render::Image;
+use crate::simd::widest;
 use rayon::prelude::*;
 
 /// A grey image, values on the 0-255 scale, row-major.
@@ -150,8 +151,9 @@ impl GradientSimilarity {
         let luma = Padded::half_luma(target);
         let mut reference = vec![0.0; luma.values.len()];
         luma.for_each_band(&mut reference, |y, row| {
-            for (x, out) in row.iter_mut().enumerate() {
-                let (gx, gy) = luma.prewitt(&luma.values, luma.index(x, y));
+            let mut gradient = Gradient::new(luma.width);
+            luma.prewitt_row(y, &mut gradient);
+            for ((out, &gx), &gy) in row.iter_mut().zip(&gradient.x).zip(&gradient.y) {
                 *out = (gx * gx + gy * gy).sqrt();
             }
         });
@@ -174,28 +176,25 @@ impl GradientSimilarity {
         );
         let luma = Padded::half_luma(pred);
         let n = (luma.width * luma.height).max(1) as f32;
-        let t = GMSD_T as f32;
-        // dLoss/d(gx, gy), interleaved, Padded layout.
-        let mut d_gradients = vec![0.0; 2 * luma.values.len()];
-        let row_len = 2 * luma.stride();
-        let band_sums: Vec<f64> = d_gradients[row_len..row_len * (luma.height + 1)]
-            .par_chunks_mut(row_len * BAND_ROWS)
+        // dLoss/d(gx, gy), Padded layout.
+        let mut d_gradient = [vec![0.0; luma.values.len()], vec![0.0; luma.values.len()]];
+        let [d_x, d_y] = &mut d_gradient;
+        let band_sums: Vec<f64> = luma
+            .bands_mut(d_x)
+            .zip(luma.bands_mut(d_y))
             .enumerate()
-            .map(|(band, rows)| {
+            .map(|(band, (rows_x, rows_y))| {
                 let mut sum = 0.0f64;
-                for (r, row) in rows.chunks_exact_mut(row_len).enumerate() {
+                let mut row = SimilarityRow::new(luma.width);
+                let rows = rows_x.chunks_exact_mut(luma.stride());
+                for (r, (d_x, d_y)) in rows.zip(rows_y.chunks_exact_mut(luma.stride())).enumerate()
+                {
                     let y = band * BAND_ROWS + r;
-                    for x in 0..luma.width {
-                        let i = luma.index(x, y);
-                        let (gx, gy) = luma.prewitt(&luma.values, i);
-                        let (a, b) = (self.reference[i], (gx * gx + gy * gy).sqrt());
-                        let (num, den) = (2.0 * a * b + t, a * a + b * b + t);
-                        sum += f64::from(1.0 - num / den);
-                        if b > 0.0 {
-                            let d_b = (2.0 * b * num - 2.0 * a * den) / (den * den) / n;
-                            row[2 * (x + 1)] = d_b * gx / b;
-                            row[2 * (x + 1) + 1] = d_b * gy / b;
-                        }
+                    let reference = &self.reference[luma.index(0, y)..][..luma.width];
+                    let d = (&mut d_x[1..=luma.width], &mut d_y[1..=luma.width]);
+                    widest!(row.compute(&luma, y, reference, n, d));
+                    for &term in &row.terms {
+                        sum += f64::from(term);
                     }
                 }
                 sum
@@ -203,10 +202,8 @@ impl GradientSimilarity {
             .collect();
         // The Prewitt operator's transpose is its negation; each half pixel is a 2×2 block.
         let scale: [f32; 3] = LUMA.map(|l| -weight * 255.0 / 4.0 * l as f32);
+        let pair_scale = [scale[0], scale[1], scale[2], scale[0], scale[1], scale[2]];
         let width = self.width;
-        let s = 2 * luma.stride();
-        let column = |j: usize| d_gradients[j - s] + d_gradients[j] + d_gradients[j + s];
-        let across = |j: usize| d_gradients[j - 2] + d_gradients[j] + d_gradients[j + 2];
         grad.data
             .par_chunks_mut(3 * width * 2 * BAND_ROWS)
             .enumerate()
@@ -214,21 +211,75 @@ impl GradientSimilarity {
                 let mut d_half = vec![0.0; luma.width];
                 for (r, pair) in rows.chunks_mut(3 * width * 2).enumerate() {
                     let y = band * BAND_ROWS + r;
-                    for (x, d) in d_half.iter_mut().enumerate() {
-                        let i = 2 * luma.index(x, y);
-                        *d = column(i - 2) - column(i + 2) + across(i + 1 - s) - across(i + 1 + s);
-                    }
+                    widest!(luma.prewitt_transpose_row(y, [d_x, d_y], &mut d_half));
                     for row in pair.chunks_mut(3 * width) {
-                        for (x, px) in row.chunks_exact_mut(3).enumerate() {
-                            let d = d_half[x / 2] / 3.0;
-                            for c in 0..3 {
-                                px[c] += scale[c] * d;
+                        widest!(for (px, &d) in row.chunks_mut(6).zip(&d_half) {
+                            for (v, &scale) in px.iter_mut().zip(&pair_scale) {
+                                *v += scale * d;
                             }
-                        }
+                        })
                     }
                 }
             });
         weight * (band_sums.iter().sum::<f64>() / f64::from(n)) as f32
+    }
+}
+
+/// Prewitt gradients (divided by 3) of one half-size row.
+struct Gradient {
+    x: Vec<f32>,
+    y: Vec<f32>,
+}
+
+impl Gradient {
+    fn new(width: usize) -> Self {
+        Self {
+            x: vec![0.0; width],
+            y: vec![0.0; width],
+        }
+    }
+}
+
+/// One half-size row of the gradient-similarity loss, in buffers reused from row to row.
+struct SimilarityRow {
+    gradient: Gradient,
+    /// Each pixel's `1 − GMS`, summed in order by the caller.
+    terms: Vec<f32>,
+}
+
+impl SimilarityRow {
+    fn new(width: usize) -> Self {
+        Self {
+            gradient: Gradient::new(width),
+            terms: vec![0.0; width],
+        }
+    }
+
+    /// Row `y`'s terms against the target's magnitudes `reference`, and dLoss/d(gx, gy) over
+    /// `n` terms into `d` (zero where the magnitude is zero).
+    #[inline(always)]
+    fn compute(
+        &mut self,
+        luma: &Padded,
+        y: usize,
+        reference: &[f32],
+        n: f32,
+        (d_x, d_y): (&mut [f32], &mut [f32]),
+    ) {
+        let t = GMSD_T as f32;
+        luma.prewitt_row(y, &mut self.gradient);
+        let Gradient { x: gx, y: gy } = &self.gradient;
+        let outs = self.terms.iter_mut().zip(d_x.iter_mut().zip(d_y));
+        let ins = reference.iter().zip(gx.iter().zip(gy));
+        for ((term, (d_x, d_y)), (&a, (&gx, &gy))) in outs.zip(ins) {
+            let b = (gx * gx + gy * gy).sqrt();
+            let (num, den) = (2.0 * a * b + t, a * a + b * b + t);
+            *term = 1.0 - num / den;
+            let d_b = (2.0 * b * num - 2.0 * a * den) / (den * den) / n;
+            let moving = b > 0.0;
+            *d_x = if moving { d_b * gx / b } else { 0.0 };
+            *d_y = if moving { d_b * gy / b } else { 0.0 };
+        }
     }
 }
 
@@ -273,29 +324,61 @@ impl Padded {
         (y + 1) * self.stride() + x + 1
     }
 
+    /// The rows of `buffer` (this layout, border rows left out) in bands of [`BAND_ROWS`], for
+    /// rayon.
+    fn bands_mut<'a>(&self, buffer: &'a mut [f32]) -> rayon::slice::ChunksMut<'a, f32> {
+        let stride = self.stride();
+        buffer[stride..stride * (self.height + 1)].par_chunks_mut(stride * BAND_ROWS)
+    }
+
     /// Runs `f(y, interior of row y)` over every row of `buffer` (this layout), in parallel
     /// bands of [`BAND_ROWS`].
     fn for_each_band(&self, buffer: &mut [f32], f: impl Fn(usize, &mut [f32]) + Sync) {
         let stride = self.stride();
-        buffer[stride..stride * (self.height + 1)]
-            .par_chunks_mut(stride * BAND_ROWS)
-            .enumerate()
-            .for_each(|(band, rows)| {
-                for (r, row) in rows.chunks_exact_mut(stride).enumerate() {
-                    f(band * BAND_ROWS + r, &mut row[1..=self.width]);
-                }
-            });
+        self.bands_mut(buffer).enumerate().for_each(|(band, rows)| {
+            for (r, row) in rows.chunks_exact_mut(stride).enumerate() {
+                f(band * BAND_ROWS + r, &mut row[1..=self.width]);
+            }
+        });
     }
 
-    /// The Prewitt gradient (x, y) at index `i` of `src` (this layout), divided by 3.
-    fn prewitt(&self, src: &[f32], i: usize) -> (f32, f32) {
-        let s = self.stride();
-        let column = |j: usize| src[j - s] + src[j] + src[j + s];
-        let across = |j: usize| src[j - 1] + src[j] + src[j + 1];
-        (
-            (column(i - 1) - column(i + 1)) / 3.0,
-            (across(i - s) - across(i + s)) / 3.0,
-        )
+    /// Row `y`'s rows above, at and below it, each from the column left of the first to the
+    /// one right of the last (`width + 2` values).
+    #[inline(always)]
+    fn neighbourhood<'a>(&self, src: &'a [f32], y: usize) -> [&'a [f32]; 3] {
+        let (s, w) = (self.stride(), self.width + 2);
+        let start = self.index(0, y) - 1;
+        [
+            &src[start - s..][..w],
+            &src[start..][..w],
+            &src[start + s..][..w],
+        ]
+    }
+
+    /// The Prewitt gradient (x, y) of row `y`, divided by 3.
+    #[inline(always)]
+    fn prewitt_row(&self, y: usize, out: &mut Gradient) {
+        let [above, at, below] = self.neighbourhood(&self.values, y);
+        let column = |k: usize| above[k] + at[k] + below[k];
+        let across = |row: &[f32], k: usize| row[k] + row[k + 1] + row[k + 2];
+        let width = self.width.min(out.x.len()).min(out.y.len());
+        for x in 0..width {
+            out.x[x] = (column(x) - column(x + 2)) / 3.0;
+            out.y[x] = (across(above, x) - across(below, x)) / 3.0;
+        }
+    }
+
+    /// The Prewitt operator's transpose (divided by 3) applied to dLoss/d(gx, gy) (this
+    /// layout), for row `y` into `out`.
+    #[inline(always)]
+    fn prewitt_transpose_row(&self, y: usize, [d_x, d_y]: [&[f32]; 2], out: &mut [f32]) {
+        let [x_above, x_at, x_below] = self.neighbourhood(d_x, y);
+        let [y_above, _, y_below] = self.neighbourhood(d_y, y);
+        let column = |k: usize| x_above[k] + x_at[k] + x_below[k];
+        let across = |row: &[f32], k: usize| row[k] + row[k + 1] + row[k + 2];
+        for (x, out) in out.iter_mut().enumerate().take(self.width) {
+            *out = (column(x) - column(x + 2) + across(y_above, x) - across(y_below, x)) / 3.0;
+        }
     }
 }
 

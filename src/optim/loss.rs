@@ -6,6 +6,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 
 use crate::render::Image;
+use crate::simd::widest;
 
 /// Values per block of a loss's sum. Blocks are summed in parallel, each in a fixed order in
 /// [`LANES`] running sums, and the block sums added in block order, so the value does not
@@ -14,12 +15,34 @@ const SUM_BLOCK: usize = 1 << 14;
 /// Independent running sums within a block, so that each addition need not wait for the last.
 const LANES: usize = 8;
 
-/// Sums `term(i)` over one block's values, the `i`-th into running sum `i % LANES`.
-fn lane_sum(len: usize, mut term: impl FnMut(usize) -> f64) -> f64 {
+/// Sum of squared differences over one block's values, running sum `i % LANES` taking the
+/// `i`-th, a whole chunk of [`LANES`] values at a time so that the loop vectorises. With
+/// `Some((grad, n))`, also writes the MSE's gradient over `n` values into `grad`.
+#[inline(always)]
+fn squares(pred: &[f32], target: &[f32], mut grad: Option<(&mut [f32], f32)>) -> f64 {
+    let len = pred.len();
     let mut lanes = [0f64; LANES];
-    for i in 0..len {
-        lanes[i % LANES] += term(i);
+    let mut add = |start: usize, d: &[f32]| {
+        if let Some((grad, n)) = grad.as_mut() {
+            for (g, d) in grad[start..start + d.len()].iter_mut().zip(d) {
+                *g = 2.0 * d / *n;
+            }
+        }
+        for (lane, d) in lanes.iter_mut().zip(d) {
+            *lane += f64::from(d * d);
+        }
+    };
+    let (pred_chunks, pred_tail) = pred.as_chunks::<LANES>();
+    let (target_chunks, target_tail) = target[..len].as_chunks::<LANES>();
+    for (k, (p, t)) in pred_chunks.iter().zip(target_chunks).enumerate() {
+        let d: [f32; LANES] = std::array::from_fn(|j| p[j] - t[j]);
+        add(k * LANES, &d);
     }
+    let mut d = [0.0; LANES];
+    for (d, (p, t)) in d.iter_mut().zip(pred_tail.iter().zip(target_tail)) {
+        *d = p - t;
+    }
+    add(len - pred_tail.len(), &d[..pred_tail.len()]);
     lanes.iter().sum()
 }
 
@@ -30,11 +53,7 @@ pub fn mse(pred: &Image, target: &Image, grad: &mut Image) -> f32 {
 
 /// One block of [`mse`]: writes its gradient, returns its sum of squares.
 fn mse_block(grad: &mut [f32], pred: &[f32], target: &[f32], n: f32) -> f64 {
-    lane_sum(grad.len(), |i| {
-        let d = pred[i] - target[i];
-        grad[i] = 2.0 * d / n;
-        f64::from(d * d)
-    })
+    widest!(squares(pred, target, Some((grad, n))))
 }
 
 /// [`mse`] of a prediction that changes in parts (a few paths moving over a fixed backdrop):
@@ -95,7 +114,7 @@ pub fn mse_value(pred: &Image, target: &Image) -> f32 {
         .data
         .par_chunks(SUM_BLOCK)
         .zip(target.data.par_chunks(SUM_BLOCK))
-        .map(|(p, t)| lane_sum(p.len(), |i| f64::from((p[i] - t[i]) * (p[i] - t[i]))))
+        .map(|(p, t)| widest!(squares(p, t, None)))
         .collect();
     (blocks.iter().sum::<f64>() / n) as f32
 }

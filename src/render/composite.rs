@@ -19,6 +19,7 @@ use rayon::prelude::*;
 
 use super::{Image, Rasterizer};
 use crate::scene::{LayerKind, Scene};
+use crate::simd::widest;
 
 /// Upper bound for illumination colours during optimisation: the product model lets shading
 /// brighten albedo up to 4× (highlights over dark albedo estimates). The optimiser projects
@@ -60,9 +61,9 @@ pub fn product_range(a: &Image, b: &Image, out: &mut Image, range: Range<usize>)
         .par_chunks_mut(CHUNK)
         .zip(a.par_chunks(CHUNK).zip(b.par_chunks(CHUNK)))
         .for_each(|(o, (a, b))| {
-            for ((o, &x), &y) in o.iter_mut().zip(a).zip(b) {
+            widest!(for ((o, &x), &y) in o.iter_mut().zip(a).zip(b) {
                 *o = x * y;
-            }
+            })
         });
 }
 
@@ -77,10 +78,11 @@ pub fn product_backward(a: &Image, b: &Image, d_out: &Image, d_a: &mut Image, d_
         .zip(a.data.par_chunks(CHUNK).zip(b.data.par_chunks(CHUNK)))
         .zip(d_out.data.par_chunks(CHUNK))
         .for_each(|(((d_a, d_b), (a, b)), g)| {
-            for i in 0..g.len() {
-                d_a[i] = g[i] * b[i];
-                d_b[i] = g[i] * a[i];
-            }
+            let values = d_a.iter_mut().zip(d_b).zip(a.iter().zip(b)).zip(g);
+            widest!(for (((d_a, d_b), (&a, &b)), &g) in values {
+                *d_a = g * b;
+                *d_b = g * a;
+            })
         });
 }
 
@@ -93,9 +95,11 @@ pub fn svg_model(a: &Image, s: &Image, l: &Image, out: &mut Image) {
         .zip(a.data.par_chunks(CHUNK).zip(s.data.par_chunks(CHUNK)))
         .zip(l.data.par_chunks(CHUNK))
         .for_each(|((o, (a, s)), l)| {
-            for i in 0..o.len() {
-                o[i] = (a[i] * s[i] + l[i]).clamp(0.0, 1.0);
-            }
+            widest!(
+                for ((o, (&a, &s)), &l) in o.iter_mut().zip(a.iter().zip(s)).zip(l) {
+                    *o = (a * s + l).clamp(0.0, 1.0);
+                }
+            )
         });
 }
 
@@ -122,17 +126,17 @@ pub fn svg_model_backward(
         .zip(a.data.par_chunks(CHUNK).zip(s.data.par_chunks(CHUNK)))
         .zip(l.data.par_chunks(CHUNK).zip(d_out.data.par_chunks(CHUNK)))
         .for_each(|((((d_a, d_s), d_l), (a, s)), (l, d_out))| {
-            for i in 0..d_out.len() {
-                let v = a[i] * s[i] + l[i];
-                let g = if (0.0..=1.0).contains(&v) {
-                    d_out[i]
-                } else {
-                    0.0
-                };
-                d_a[i] = g * s[i];
-                d_s[i] = g * a[i];
-                d_l[i] = g;
-            }
+            let outs = d_a.iter_mut().zip(d_s).zip(d_l);
+            let ins = a.iter().zip(s).zip(l.iter().zip(d_out));
+            widest!(
+                for (((d_a, d_s), d_l), ((&a, &s), (&l, &d_out))) in outs.zip(ins) {
+                    let v = a * s + l;
+                    let g = if (0.0..=1.0).contains(&v) { d_out } else { 0.0 };
+                    *d_a = g * s;
+                    *d_s = g * a;
+                    *d_l = g;
+                }
+            )
         });
 }
 
