@@ -26,6 +26,7 @@ use super::{
     Backdrop, Image, PathGrad, STRIP_ROWS, StripAreas, StripCoverage, meets_strip, strip_rows,
 };
 use crate::scene::Path;
+use crate::simd::widest;
 
 /// Target size of one pass's signed-area buffer: about a core's L2 cache. Each pass scan-converts
 /// and walks the edges of every path meeting it, so thinner passes repeat that work; on the
@@ -210,21 +211,9 @@ pub(super) struct Band<'a> {
 
 impl Band<'_> {
     /// Adds the band's partial gradients into `out`. Compiled for the widest vector unit the
-    /// processor has; every build does the same arithmetic lane by lane, so the results are
-    /// bit-identical.
+    /// processor has ([`widest!`]).
     pub fn run(&self, out: &mut BandGrads, ws: &mut Workspace, coverage: &mut StripCoverage<f32>) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor has AVX2.
-            return unsafe { self.run_avx2(out, ws, coverage) };
-        }
-        self.run_in(out, ws, coverage);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn run_avx2(&self, out: &mut BandGrads, ws: &mut Workspace, coverage: &mut StripCoverage<f32>) {
-        self.run_in(out, ws, coverage);
+        widest!(self.run_in(out, ws, coverage))
     }
 
     #[inline(always)]

@@ -53,6 +53,7 @@ use rayon::prelude::*;
 
 use crate::geom::bezier::FLATTEN_TOLERANCE;
 use crate::scene::{Path, Point};
+use crate::simd::widest;
 use flatten::FlatScene;
 use raster::RowSpan;
 use real::Real;
@@ -679,30 +680,14 @@ struct StripJob<'a, T> {
 impl<T: Real> StripJob<'_, T> {
     /// Paints the strip into `pixels`; with `store`, also keeps every drawable path's signed
     /// areas there (those of paths with zero opacity too: the backward needs them). Compiled
-    /// for the widest vector unit the processor has; every build does the same arithmetic.
+    /// for the widest vector unit the processor has ([`widest!`]).
     fn render(
         &self,
         pixels: &mut [T],
         scratch: &mut StripCoverage<T>,
         store: Option<&mut StripAreas<T>>,
     ) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor has AVX2.
-            return unsafe { self.render_avx2(pixels, scratch, store) };
-        }
-        self.render_in(pixels, scratch, store);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn render_avx2(
-        &self,
-        pixels: &mut [T],
-        scratch: &mut StripCoverage<T>,
-        store: Option<&mut StripAreas<T>>,
-    ) {
-        self.render_in(pixels, scratch, store);
+        widest!(self.render_in(pixels, scratch, store))
     }
 
     #[inline(always)]
