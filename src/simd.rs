@@ -10,9 +10,9 @@
 /// Evaluates the expression, compiled with AVX2 when the processor has it.
 ///
 /// The expression is written twice: once as it stands (the baseline copy), once in a closure
-/// that only an AVX2 function calls, so the compiler inlines it there (a closure called from one
-/// place always is). Functions the expression calls must be `#[inline(always)]` for their loops
-/// to be compiled for AVX2 too.
+/// that an AVX2 function calls and must inline (the compiler may otherwise keep a large one
+/// apart, compiled for baseline x86-64). Functions the expression calls must be
+/// `#[inline(always)]` for their loops to be compiled for AVX2 too.
 macro_rules! widest {
     ($body:expr) => {{
         #[cfg(target_arch = "x86_64")]
@@ -23,7 +23,7 @@ macro_rules! widest {
             }
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: the processor has AVX2.
-                unsafe { avx2(|| $body) }
+                unsafe { avx2(#[inline(always)] || $body) }
             } else {
                 $body
             }
