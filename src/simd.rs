@@ -23,7 +23,12 @@ macro_rules! widest {
             }
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: the processor has AVX2.
-                unsafe { avx2(#[inline(always)] || $body) }
+                unsafe {
+                    avx2(
+                        #[inline(always)]
+                        || $body,
+                    )
+                }
             } else {
                 $body
             }
