@@ -19,7 +19,7 @@ from pathlib import Path
 
 # Bottom to top; a module may import its own layer's modules only within itself.
 LAYERS = [
-    ["scene"],
+    ["scene", "simd"],
     ["geom"],
     ["render", "opaque"],
     ["imageio", "optim", "svg", "pdf"],
