@@ -183,38 +183,52 @@ impl<'a> Optimisation<'a> {
         if !self.pyramid.is_empty() { asked } else { 0 }
     }
 
-    /// Runs a stage of `total` iterations (or rounds) in two parts: the first `coarse_count` on
-    /// the copy halved `halvings` times (none when the coarse phase does not apply), the rest at
-    /// full size. `part` runs one part with the kept terms at its size; returns the fine part's
-    /// result.
+    /// Runs a stage of `total` iterations (or rounds) coarse to fine: each of `coarse`'s
+    /// `(count, halvings)` parts in turn on the copy halved that many times (none when the
+    /// coarse phase does not apply), then the rest at full size. `part` runs one part with the
+    /// kept terms at its size; returns the fine part's result.
     fn coarse_then_fine<T>(
         &mut self,
         total: u32,
-        (coarse_count, halvings): (u32, u32),
+        coarse: &[(u32, u32)],
         mut part: impl FnMut(&mut Scene, &Image, Part) -> Result<T, Error>,
     ) -> Result<T, Error> {
-        let coarse_count = self.coarse_count(coarse_count);
         let keep = self.keep.take();
-        let (full, reduced) = keep_runs(&keep, halvings, self.params.seed);
+        let seed = self.params.seed;
         let span = |start: u32, count: u32| IterationSpan {
             start,
             count,
             total,
         };
-        let coarse = self.coarse(halvings, |small, small_target| {
-            let coarse = Part {
-                span: span(0, coarse_count),
-                keep: reduced.as_ref(),
-                coarse: true,
-            };
-            part(small, small_target, coarse)
-        });
+        let mut start = 0;
+        let mut coarse_parts = Ok(());
+        for &(count, halvings) in coarse {
+            let count = self.coarse_count(count);
+            if count == 0 {
+                continue;
+            }
+            let (_, reduced) = keep_runs(&keep, halvings, seed);
+            let ran = self.coarse(halvings, |small, small_target| {
+                let coarse = Part {
+                    span: span(start, count),
+                    keep: reduced.as_ref(),
+                    coarse: true,
+                };
+                part(small, small_target, coarse)
+            });
+            start += count;
+            if let Err(error) = ran {
+                coarse_parts = Err(error);
+                break;
+            }
+        }
+        let (full, _) = keep_runs(&keep, 0, seed);
         let fine = Part {
-            span: span(coarse_count, total - coarse_count),
+            span: span(start, total - start),
             keep: full.as_ref(),
             coarse: false,
         };
-        let fine = coarse.and_then(|_| part(&mut self.scene, &self.target, fine));
+        let fine = coarse_parts.and_then(|_| part(&mut self.scene, &self.target, fine));
         self.keep = keep;
         fine
     }
@@ -269,7 +283,7 @@ impl<'a> Optimisation<'a> {
         let split = SplitPlan::new(self.params.paths as usize, self.scene.path_count());
         let (settings, mode) = (&self.settings.structure, self.mode);
         let halvings = self.halvings();
-        self.coarse_then_fine(total, (coarse_count, halvings), |scene, target, part| {
+        self.coarse_then_fine(total, &[(coarse_count, halvings)], |scene, target, part| {
             let run = ReconstructionRun {
                 span: part.span,
                 settings,
@@ -318,7 +332,7 @@ impl<'a> Optimisation<'a> {
         let (budget, seed) = (self.params.paths as usize, self.params.seed);
         let coarse_settings = &self.settings.refine;
         let coarse = (coarse_rounds, self.halvings());
-        let fine = self.coarse_then_fine(it.refine_rounds, coarse, |scene, target, part| {
+        let fine = self.coarse_then_fine(it.refine_rounds, &[coarse], |scene, target, part| {
             let plan = RefinePlan {
                 growth,
                 keep: part.keep,
@@ -349,11 +363,10 @@ impl<'a> Optimisation<'a> {
 
     fn polish(&mut self, stage: &StageRun) -> Result<(), Error> {
         let total = self.params.iterations.polish;
-        let coarse_count = self.coarse_count(self.settings.coarse.polish_coarse(
-            total,
-            self.target.width,
-            self.target.height,
-        ));
+        let coarse = &self.settings.coarse;
+        let coarse_count =
+            self.coarse_count(coarse.polish_coarse(total, self.target.width, self.target.height));
+        let polish_parts = coarse.polish_parts(coarse_count, self.halvings());
         let (settings, structure) = (&self.settings.polish, &self.settings.structure);
         let weight = settings.similarity_weight(self.target.width * self.target.height);
         let full_loss = PolishLoss::new(&self.target, weight);
@@ -363,8 +376,7 @@ impl<'a> Optimisation<'a> {
             polish::into_range(&mut self.scene);
             polish::model_loss(&mut self.canvas, &self.scene, &self.target, &full_loss)
         });
-        let halvings = self.halvings().min(self.settings.coarse.polish_halvings);
-        let fine = self.coarse_then_fine(total, (coarse_count, halvings), |scene, target, part| {
+        let fine = self.coarse_then_fine(total, &polish_parts, |scene, target, part| {
             let coarse_loss;
             let loss = if part.coarse {
                 coarse_loss = PolishLoss::new(target, weight);
