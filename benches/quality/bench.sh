@@ -12,18 +12,7 @@ after=$1; before=$2; out=$3; here=$(cd "$(dirname "$0")" && pwd); bench=${COVEC_
 mkdir -p "$out/set512"; py=$out/venv/bin/python
 [ -x "$py" ] || { python3 -m venv "$out/venv" && "$out/venv/bin/pip" -q install pillow numpy; }
 "$py" "$here/metrics.py" --check "$here/../../tests/fixtures"
-if [ ! -f "$out/set512/astronaut.png" ]; then
-  pip download -q --no-deps --only-binary=:all: scikit-image==0.26.0 -d "$out/wheel"
-  "$py" - "$out" "$bench" <<'PY'
-import glob, sys, zipfile
-from PIL import Image
-out, bench = sys.argv[1:]
-z = zipfile.ZipFile(glob.glob(f"{out}/wheel/scikit_image-*.whl")[0])
-open(f"{out}/set512/astronaut.png", "wb").write(z.read("skimage/data/astronaut.png"))
-for c, n in [("faces", "face_hopper"), ("faces", "face_kodim04"), ("scenes", "scene_coffee"), ("scenes", "scene_kodim23")]:
-    Image.open(f"{bench}/{c}/{n}.png").convert("RGB").resize((512, 512), Image.LANCZOS).save(f"{out}/set512/{n}_512.png")
-PY
-fi
+"$here/set512.sh" "$bench" "$out/set512" "$py"
 # Cubic segments in the d attributes on stdin (M, then C/c only, as covec and VTracer write;
 # one C may carry several cubics: six numbers each).
 count_cubics='import re, sys

@@ -24,18 +24,7 @@ paths=${PATHS:-8 16 32 64 128 256}; sets=${SETS:-256 512}
 mkdir -p "$out/set512" "$out/pts"; py=${PY:-$out/venv/bin/python}
 [ -x "$py" ] || { python3 -m venv "$out/venv" && "$out/venv/bin/pip" -q install pillow numpy; }
 "$py" "$here/metrics.py" --check "$here/../../tests/fixtures"
-if [[ " $sets " == *" 512 "* && ! -f "$out/set512/astronaut.png" ]]; then
-  pip download -q --no-deps --only-binary=:all: scikit-image==0.26.0 -d "$out/wheel"
-  "$py" - "$out" "$bench" <<'PY'
-import glob, sys, zipfile
-from PIL import Image
-out, bench = sys.argv[1:]
-z = zipfile.ZipFile(glob.glob(f"{out}/wheel/scikit_image-*.whl")[0])
-open(f"{out}/set512/astronaut.png", "wb").write(z.read("skimage/data/astronaut.png"))
-for c, n in [("faces", "face_hopper"), ("faces", "face_kodim04"), ("scenes", "scene_coffee"), ("scenes", "scene_kodim23")]:
-    Image.open(f"{bench}/{c}/{n}.png").convert("RGB").resize((512, 512), Image.LANCZOS).save(f"{out}/set512/{n}_512.png")
-PY
-fi
+if [[ " $sets " == *" 512 "* ]]; then "$here/set512.sh" "$bench" "$out/set512" "$py"; fi
 # VTracer's grid, "filter_speckle colour_precision gradient_step" a line, run in both modes:
 # from a few hundred gzip bytes (polygon, 8 bits, step 128) to about 100 kB at 256² (spline,
 # 8 bits, 1 px, step 4). Mostly 8 bits: below 8 VTracer truncates the fills, and on
