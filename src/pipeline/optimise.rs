@@ -207,7 +207,7 @@ impl<'a> Optimisation<'a> {
             if count == 0 {
                 continue;
             }
-            let (_, reduced) = keep_runs(&keep, halvings, seed);
+            let reduced = keep_run(&keep, halvings, seed);
             let ran = self.coarse(halvings, |small, small_target| {
                 let coarse = Part {
                     span: span(start, count),
@@ -222,7 +222,7 @@ impl<'a> Optimisation<'a> {
                 break;
             }
         }
-        let (full, _) = keep_runs(&keep, 0, seed);
+        let full = keep_run(&keep, 0, seed);
         let fine = Part {
             span: span(start, total - start),
             keep: full.as_ref(),
@@ -402,23 +402,9 @@ struct Part<'k> {
     coarse: bool,
 }
 
-/// The kept terms at full and coarse size, for a stage that runs its coarse part on the reduced
-/// canvas and then the rest at full size.
-fn keep_runs(
-    keep: &Option<Vec<Keep>>,
-    halvings: u32,
-    seed: u64,
-) -> (Option<KeepRun<'_>>, Option<KeepRun<'_>>) {
-    match keep {
-        Some(levels) => (
-            Some(KeepRun {
-                keep: &levels[0],
-                seed,
-            }),
-            levels
-                .get(halvings as usize)
-                .map(|keep| KeepRun { keep, seed }),
-        ),
-        None => (None, None),
-    }
+/// The kept terms on the copy halved `halvings` times (0: at full size).
+fn keep_run(keep: &Option<Vec<Keep>>, halvings: u32, seed: u64) -> Option<KeepRun<'_>> {
+    keep.as_ref()?
+        .get(halvings as usize)
+        .map(|keep| KeepRun { keep, seed })
 }
