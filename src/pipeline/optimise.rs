@@ -201,27 +201,23 @@ impl<'a> Optimisation<'a> {
             total,
         };
         let mut start = 0;
-        let mut coarse_parts = Ok(());
-        for &(count, halvings) in coarse {
+        let coarse_parts = coarse.iter().try_for_each(|&(count, halvings)| {
             let count = self.coarse_count(count);
             if count == 0 {
-                continue;
+                return Ok(());
             }
             let reduced = keep_run(&keep, halvings, seed);
-            let ran = self.coarse(halvings, |small, small_target| {
+            self.coarse(halvings, |small, small_target| {
                 let coarse = Part {
                     span: span(start, count),
                     keep: reduced.as_ref(),
                     coarse: true,
                 };
                 part(small, small_target, coarse)
-            });
+            })?;
             start += count;
-            if let Err(error) = ran {
-                coarse_parts = Err(error);
-                break;
-            }
-        }
+            Ok(())
+        });
         let full = keep_run(&keep, 0, seed);
         let fine = Part {
             span: span(start, total - start),
