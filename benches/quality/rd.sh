@@ -8,7 +8,7 @@
 # four bench photos upscaled 2× with Pillow's Lanczos); PY (a python with pillow + numpy;
 # default: a venv made in OUT).
 # Every SVG (covec at each path count; VTracer over a grid of filter_speckle × colour
-# precision × gradient step, in spline and in polygon mode) is measured by its `gzip -9`
+# precision × gradient step, in spline and in polygon mode) is measured by its `gzip -9n`
 # bytes and by the MSE and GMSD of its resvg render over white at the input's size against
 # the input (metrics.py). VTracer's best at covec's byte count, for each error separately,
 # is the lower convex hull of all its (bytes, error) points, both modes together, linearly
