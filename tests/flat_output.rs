@@ -7,7 +7,7 @@ use covec::opaque;
 use covec::pipeline::{self, Inputs, Iterations, Masks, Mode, Params, Quiet};
 use covec::render::{Image, Rasterizer, composite::composite};
 use covec::scene::Scene;
-use covec::svg::{SvgOptions, to_flat_svg, to_svg};
+use covec::svg::{MAX_PRECISION, SvgOptions, to_flat_svg, to_svg};
 use resvg::{tiny_skia, usvg};
 
 const PHOTOS: [&str; 4] = [
@@ -20,7 +20,7 @@ const PHOTOS: [&str; 4] = [
 /// Largest mean absolute difference, in 1/255, between the flattened and the layered render
 /// (both as 8-bit images). Issue 19 asks for 1.0/255; this bound is what is reliably reached
 /// (README, "Flattened SVG and PDF in other programs"). Measured at 96 px with 48 paths: covec
-/// 0.44-1.31, resvg 0.50-1.40, rsvg-convert 0.54-1.42, CairoSVG 0.55-1.42. Not a geometry error
+/// 0.59-1.13, resvg 0.61-1.43, rsvg-convert 0.67-1.25, CairoSVG 0.68-1.25. Not a geometry error
 /// (rendered 8× larger and averaged down, flattened and layered agree closely): anti-aliasing
 /// differs where several edges cross one pixel. The layered file anti-aliases each path on its
 /// own and composites the layers, multiplying coverages; opaque regions can only show each
@@ -105,7 +105,14 @@ fn flattened_svg_draws_the_layered_picture_without_blending() {
     for name in PHOTOS {
         let scene = vectorize(name);
         let (w, h) = (scene.width, scene.height);
-        let layered = to_svg(&scene, &SvgOptions::default());
+        // The layered file at full precision: this test is about flattening, not the layered
+        // file's grid (`svg_output`'s rounding test holds that).
+        let layered = to_svg(
+            &scene,
+            &SvgOptions {
+                precision: Some(MAX_PRECISION),
+            },
+        );
         let flat = to_flat_svg(&scene, &SvgOptions::default());
 
         let doc = roxmltree::Document::parse(&flat).unwrap();
@@ -145,7 +152,7 @@ fn flattened_svg_draws_the_layered_picture_without_blending() {
         eprintln!(
             "{name}: {paths} flat paths, {} vs {} bytes layered ({} paths); covec {covec_diff:.3}/255, resvg {resvg_diff:.3}/255, rsvg-convert {rsvg_diff:.3}/255, CairoSVG {cairo_diff:.3}/255",
             flat.len(),
-            layered.len(),
+            to_svg(&scene, &SvgOptions::default()).len(),
             scene.path_count()
         );
         for (renderer, diff) in [

@@ -92,8 +92,8 @@ pub struct Args {
     /// opacities, for programs that lack `multiply` or `plus-lighter` (larger file, not layered).
     #[arg(long)]
     pub flatten: bool,
-    /// Decimals of the SVGs' coordinates (0-6). Default: 1 up to a working long side of 1024 px,
-    /// 2 above. The JSON scene always keeps full precision.
+    /// Decimals of the SVGs' coordinates in working-canvas pixels (0-6). Default: a
+    /// quarter-pixel grid. The JSON scene always keeps full precision.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=i64::from(svg::MAX_PRECISION)))]
     pub precision: Option<u32>,
     /// Refuse images (and masks, and PNG outputs) of more pixels than this.

@@ -965,6 +965,8 @@ function showPicked() {
   const picking = session?.picked && !session.pickedPoint;
   const path = picking ? svgRoot()?.querySelector(`path#${CSS.escape(ui.pathSelect.value)}`) : null;
   ui.pickOutline.setAttribute("d", path?.getAttribute("d") || "");
+  // Path data is in the layer group's grid units; its transform brings them to the viewBox.
+  ui.pickOutline.setAttribute("transform", path?.parentNode.getAttribute("transform") || "");
 }
 
 ui.pathSelect.addEventListener("change", () => {

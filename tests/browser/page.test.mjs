@@ -651,6 +651,9 @@ async function run(context, base) {
     const outline = await page.locator("#pick-outline").getAttribute("d");
     const pathData = await page.locator(`#svg-host path#${target.id}`).getAttribute("d");
     check(outline === pathData, "the picked region is not outlined");
+    const outlineScale = await page.locator("#pick-outline").getAttribute("transform");
+    const layerScale = await page.locator("#svg-host g#albedo").getAttribute("transform");
+    check(outlineScale === layerScale, `the outline is scaled by ${outlineScale}, its layer by ${layerScale}`);
     facts.recolour = { path: target.id, old_fill: target.fill, area_points: target.points.length };
     await screenshot("picked");
   });
