@@ -18,7 +18,7 @@ use crate::scene::{LayerKind, Path, PathId, Point, Scene};
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SvgOptions {
     /// Decimals of coordinates in working-canvas pixels (0-6). Default `None`: a quarter-pixel
-    /// grid ([`DEFAULT_UNITS_PER_PIXEL`]).
+    /// grid ([`DEFAULT_UNITS_PER_PIXEL`]), a tenth in the flattened SVG.
     pub precision: Option<u32>,
 }
 

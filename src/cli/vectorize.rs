@@ -93,7 +93,7 @@ pub struct Args {
     #[arg(long)]
     pub flatten: bool,
     /// Decimals of the SVGs' coordinates in working-canvas pixels (0-6). Default: a
-    /// quarter-pixel grid. The JSON scene always keeps full precision.
+    /// quarter-pixel grid (a tenth with --flatten). The JSON scene always keeps full precision.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=i64::from(svg::MAX_PRECISION)))]
     pub precision: Option<u32>,
     /// Refuse images (and masks, and PNG outputs) of more pixels than this.
