@@ -5,11 +5,11 @@
 
 Vectorizes each image with both binaries (the scenes must come out equal; only the SVG writer
 should differ), then reports per image the gzip -9 bytes per path of both SVGs and, for the new
-one, the error its coordinate rounding adds: its path data is parsed back into the scene (colours
-and opacities kept at full precision) and both scenes are rendered with `covec render` at the
+one, the error its coordinate rounding adds: its path data is parsed back into the scene (in the
+layer groups' grid units, scaled back to pixels; colours and opacities kept at full precision) and both scenes are rendered with `covec render` at the
 working size; the table gives the largest and the mean pixel difference between the two renders and both
-renders' MSE against the input (resized to the working size). Needs numpy and Pillow. The numbers are in the README
-("Compact path data").
+renders' MSE against the input (resized to the working size). Needs numpy and Pillow. The numbers
+are in docs/history.md ("Compact path data").
 """
 
 import argparse
@@ -25,6 +25,8 @@ from PIL import Image
 
 TOKEN = re.compile(r"[MCcZ]|-?(?:\d+\.?\d*|\.\d+)")
 PATH = re.compile(r'<path id="(\w+)-(\d+)"[^>]* d="([^"]*)"')
+# The layer groups' scale from grid units to pixels (the same on every group; none: pixels).
+SCALE = re.compile(r'<g id="\w+"[^>]* transform="scale\(([^)]+)\)"')
 
 
 def path_points(d):
@@ -49,8 +51,10 @@ def path_points(d):
 
 def rounded_scene(scene, svg):
     out = json.loads(json.dumps(scene))
+    scale = float(m.group(1)) if (m := SCALE.search(svg)) else 1.0
     for layer, index, d in PATH.findall(svg):
-        out[layer]["paths"][int(index)]["points"] = [{"x": x, "y": y} for x, y in path_points(d)]
+        points = [{"x": x * scale, "y": y * scale} for x, y in path_points(d)]
+        out[layer]["paths"][int(index)]["points"] = points
     return out
 
 
