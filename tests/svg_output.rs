@@ -82,8 +82,6 @@ fn the_layered_svg_has_the_structure_browsers_need() {
         let title = group.first_element_child().unwrap();
         assert!(title.has_tag_name("title"));
         assert!(title.text().unwrap().starts_with(name));
-    }
-    for group in &groups {
         // Path data in whole quarter pixels, scaled back to the viewBox.
         assert_eq!(group.attribute("transform"), Some("scale(.25)"));
     }
