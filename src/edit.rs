@@ -1,4 +1,5 @@
-//! Illumination-aware recolouring: change albedo paths and keep the shade and light layers.
+//! Illumination-aware recolouring: change albedo paths and keep the lighting: the shade and
+//! light layers, less (in a reference edit) the colour an object left in its own shade paths.
 //!
 //! Two kinds of edit, both cheap (no optimisation) and both returning a new [`Scene`] with the
 //! list of paths they changed:
@@ -162,10 +163,12 @@ pub fn recolor_paths(scene: &Scene, changes: &[ColorChange]) -> Result<Edit, Edi
 /// `I = A·S + L` the light must come off first), so the lighting stays; otherwise it is the
 /// reference colour.
 ///
-/// Departure: a path's support S_n is the part of its silhouette no later albedo path covers
-/// (what the path paints), not the whole silhouette as in the paper. Under a stack of opaque
-/// paths the silhouette of the full-canvas base holds every edit, so with the paper's rule an
-/// edit of one object that is large enough recolours the base, and with it the background.
+/// Departures:
+/// - a path's support S_n is the part of its silhouette no later albedo path covers (what the
+///   path paints), not the whole silhouette as in the paper. Under a stack of opaque paths the
+///   silhouette of the full-canvas base holds every edit, so with the paper's rule an edit of
+///   one object that is large enough recolours the base, and with it the background;
+/// - the object's own shade and light paths are refit too ([`refit_illumination`]).
 pub fn recolor_by_reference(
     scene: &Scene,
     original: &Image,
@@ -258,7 +261,7 @@ pub fn recolor_by_reference(
     candidates.sort_by(|a, b| b.area.cmp(&a.area).then(a.index.cmp(&b.index)));
 
     let mut edited = scene.clone();
-    let changed = candidates
+    let mut changed: Vec<Changed> = candidates
         .iter()
         .take(params.k)
         .map(|c| {
@@ -275,10 +278,147 @@ pub fn recolor_by_reference(
             set_fill(id, path, color, path.opacity)
         })
         .collect();
+    let object: Vec<bool> = owner
+        .iter()
+        .zip(&edit_region)
+        .map(|(o, &e)| e && o.is_some_and(|i| changed.iter().any(|c| c.path.index == i)))
+        .collect();
+    let target = edited_target(scene, original, reference);
+    changed.extend(refit_illumination(
+        &mut rasterizer,
+        &mut edited,
+        &object,
+        &target,
+    ));
     Ok(Edit {
         scene: edited,
         changed,
     })
+}
+
+/// Share of an illumination path's paint that may fall outside the edited object for the
+/// reference edit to recolour the path with it.
+const OWN_PATH_OUTSIDE: f64 = 0.25;
+
+/// Passes of the illumination refit over the object's own paths.
+const REFIT_ROUNDS: usize = 3;
+
+/// What the edited render should show: the unedited render plus the edit
+/// (`reference − original`), so the refit transfers the edit rather than the photo's detail
+/// the scene never held.
+fn edited_target(scene: &Scene, original: &Image, reference: &Image) -> Image {
+    let mut target = crate::render::composite::composite(scene);
+    for ((t, &o), &r) in target
+        .data
+        .iter_mut()
+        .zip(&original.data)
+        .zip(&reference.data)
+    {
+        *t = (*t + r - o).clamp(0.0, 1.0);
+    }
+    target
+}
+
+/// Recolours the object's own shade and light paths (those painting almost only inside
+/// `object`) so the edited scene follows `target`, by least squares on each path's colour in
+/// turn. The decomposition leaves colour texture and part of a surface's colour in the shade
+/// (a red cap's shade is reddish): a new albedo alone under it cannot reach the new colour,
+/// and where it would need a channel above 1 it is clamped. Departure from the paper, which
+/// recolours albedo paths only; paths that reach outside the object are kept, so the edit
+/// still keeps to it.
+fn refit_illumination(
+    rasterizer: &mut Rasterizer,
+    edited: &mut Scene,
+    object: &[bool],
+    target: &Image,
+) -> Vec<Changed> {
+    let (width, height) = (edited.width as usize, edited.height as usize);
+    let [albedo, mut shade, mut light] = crate::render::composite::render_layers(edited);
+    // Each own path's paint weight per pixel (coverage × opacity × what later paths let
+    // through), which does not depend on colours: the layer rendered black over black with
+    // this path white.
+    let mut own = Vec::new();
+    let mut scratch = Image::default();
+    for kind in [LayerKind::Shade, LayerKind::Light] {
+        let paths = &edited.layer(kind).paths;
+        for index in 0..paths.len() {
+            let probe: Vec<Path> = paths
+                .iter()
+                .enumerate()
+                .map(|(i, p)| Path {
+                    color: [if i == index { 1.0 } else { 0.0 }; 3],
+                    ..p.clone()
+                })
+                .collect();
+            rasterizer.render(&probe, [0.0; 3], width, height, &mut scratch);
+            let weights: Vec<(usize, f32)> = scratch
+                .data
+                .chunks_exact(3)
+                .enumerate()
+                .filter(|(_, px)| px[0] > 0.0)
+                .map(|(p, px)| (p, px[0]))
+                .collect();
+            let total: f64 = weights.iter().map(|&(_, w)| f64::from(w)).sum();
+            let outside: f64 = weights
+                .iter()
+                .filter(|&&(p, _)| !object[p])
+                .map(|&(_, w)| f64::from(w))
+                .sum();
+            if total > 0.0 && outside <= OWN_PATH_OUTSIDE * total {
+                own.push((PathId { layer: kind, index }, weights));
+            }
+        }
+    }
+    let before: Vec<(PathId, [f32; 3])> = own
+        .iter()
+        .map(|(id, _)| (*id, edited.layer(id.layer).paths[id.index].color))
+        .collect();
+    for _ in 0..REFIT_ROUNDS {
+        for (id, weights) in &own {
+            let path = &mut edited.layer_mut(id.layer).paths[id.index];
+            for c in 0..3 {
+                // d(render)/d(colour) is w·A for a shade path, w for a light path.
+                let (mut gr, mut gg) = (0f64, 0f64);
+                for &(p, w) in weights {
+                    let i = 3 * p + c;
+                    let g = match id.layer {
+                        LayerKind::Shade => w * albedo.data[i],
+                        _ => w,
+                    };
+                    let shown = albedo.data[i] * shade.data[i] + light.data[i];
+                    gr += f64::from(g) * f64::from(target.data[i] - shown);
+                    gg += f64::from(g) * f64::from(g);
+                }
+                if gg <= 0.0 {
+                    continue;
+                }
+                let old = path.color[c];
+                let new = (f64::from(old) + gr / gg).clamp(0.0, 1.0) as f32;
+                let layer = if id.layer == LayerKind::Shade {
+                    &mut shade
+                } else {
+                    &mut light
+                };
+                for &(p, w) in weights {
+                    layer.data[3 * p + c] += w * (new - old);
+                }
+                path.color[c] = new;
+            }
+        }
+    }
+    before
+        .into_iter()
+        .filter_map(|(id, old_color)| {
+            let path = &edited.layer(id.layer).paths[id.index];
+            (path.color != old_color).then(|| Changed {
+                path: id,
+                old_color,
+                new_color: path.color,
+                old_opacity: path.opacity,
+                new_opacity: path.opacity,
+            })
+        })
+        .collect()
 }
 
 /// The topmost albedo path whose outline contains `point` (non-zero rule).
@@ -462,6 +602,40 @@ mod tests {
             recolor_paths(&scene, &[outside]),
             Err(EditError::NothingAt { .. })
         ));
+    }
+
+    #[test]
+    fn a_reference_edit_recolours_the_objects_own_shade_and_keeps_the_rest() {
+        // The red square's shade path is orange: blue albedo under it cannot show the
+        // reference's blue (its blue channel would need 1.7), so that shade path is refit; the
+        // shade over the whole canvas reaches far outside the object and is kept.
+        let mut scene = scene_with_two_squares();
+        scene.albedo.paths[1].color = [0.9, 0.2, 0.1];
+        scene.shade.paths = vec![
+            Path::rect(0.0, 0.0, 20.0, 20.0, [0.8; 3], 1.0),
+            Path::rect(2.0, 2.0, 10.0, 10.0, [1.0, 0.7, 0.4], 1.0),
+        ];
+        let original = crate::render::composite::composite(&scene);
+        let mut reference = original.clone();
+        let inside = |i: usize| (2..10).contains(&(i % 20)) && (2..10).contains(&(i / 20));
+        for i in (0..400).filter(|&i| inside(i)) {
+            reference.data[3 * i..3 * i + 3].copy_from_slice(&[0.1, 0.2, 0.7]);
+        }
+        let edit = recolor_by_reference(&scene, &original, &reference, &ReferenceParams::default())
+            .unwrap();
+        let changed: Vec<String> = edit.changed.iter().map(|c| c.path.to_string()).collect();
+        assert_eq!(changed, ["albedo-1", "shade-1"]);
+        let shown = crate::render::composite::composite(&edit.scene);
+        for i in 0..400 {
+            let expected = if inside(i) { &reference } else { &original };
+            for c in 0..3 {
+                let (got, want) = (shown.data[3 * i + c], expected.data[3 * i + c]);
+                assert!(
+                    (got - want).abs() < 1e-3,
+                    "pixel {i} channel {c}: {got} against {want}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -23,7 +23,8 @@ pub struct Args {
     /// The JSON scene written by `covec vectorize` (or the service's scene.json).
     pub scene: PathBuf,
     /// An edited copy of the original image: the albedo paths under the edited region take
-    /// its colours, divided by the shade under them.
+    /// its colours, divided by the shade under them; the shade and light paths lying (¾ or
+    /// more) inside the recoloured region are refit to it.
     #[arg(long, value_name = "EDITED.png", required_unless_present_any = ["set", "at"])]
     pub reference: Option<PathBuf>,
     /// The original image the reference was edited from (same aspect ratio as the reference).

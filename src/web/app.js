@@ -1147,11 +1147,14 @@ function fillDownloads() {
     ["pdf", jobPath(session.job, "/pdf"), `${stem}.pdf`, `PDF${before}`],
     ["png", jobPath(session.job, "/png"), `${stem}.png`, `PNG${before}`],
   );
-  // An edit recolours albedo paths only: the job's shade and light layers stay current.
+  // The job's layer files stay current for each layer no edit since the original changed (a
+  // reference edit may recolour an object's own shade and light paths with its albedo).
   const layerUrls = version.layerUrls || original.layerUrls;
   const layerStem = version.layerUrls ? versionStem : stem;
+  const edited = (name) =>
+    session.versions.slice(1).some((v) => v.changed.some((c) => c.path.startsWith(`${name}-`)));
   for (const name of LAYERS) {
-    const stale = name === "albedo" && version.id && !version.layerUrls;
+    const stale = !version.layerUrls && edited(name);
     const label = `${name[0].toUpperCase()}${name.slice(1)} layer SVG${stale ? " (before recolouring)" : ""}`;
     links.push([name, layerUrls[name], `${layerStem}-${name}.svg`, label]);
   }

@@ -56,7 +56,9 @@ pub fn endpoints() -> Vec<Endpoint> {
     description = "JSON: direct colour changes, by path id or by the albedo path under a point \
         (viewBox coordinates). Multipart: recolour by an edited reference image of the job's \
         image size (paper Appendix D): the top `k` albedo paths by area that overlap the edited \
-        region and change colour get the reference colour divided by the mean shade under them. \
+        region and change colour get the reference colour divided by the mean shade under them, \
+        and the shade and light paths lying (3/4 or more) inside the recoloured region are refit \
+        to the reference. \
         `base` applies the edit on top of an earlier edit of the same job. A JSON body is at most \
         1 MiB (413 `body-too-large`) with at most 4096 changes (413 `too-many-changes`); a \
         reference image over `--max-pixels` is 413 `too-many-pixels`, one cut short 422 \
