@@ -14,7 +14,8 @@ use crate::scene::{LayerKind, Path, PathId, Point, Scene};
 #[cfg_attr(feature = "service", derive(utoipa::ToSchema))]
 #[serde(default, deny_unknown_fields)]
 pub struct ReferenceParams {
-    /// Number of paths to recolour at most (the paper's K). Default 4.
+    /// Number of albedo paths to recolour at most (the paper's K); the object's own shade and
+    /// light paths are refit with them. Default 4.
     #[cfg_attr(feature = "service", schema(minimum = 1))]
     pub k: usize,
     /// A pixel is edited when its mean absolute channel difference exceeds τ. Default 0.05.
@@ -410,7 +411,7 @@ fn refit_illumination(
         .into_iter()
         .filter_map(|(id, old_color)| {
             let path = &edited.layer(id.layer).paths[id.index];
-            (path.color != old_color).then(|| Changed {
+            (path.color != old_color).then_some(Changed {
                 path: id,
                 old_color,
                 new_color: path.color,

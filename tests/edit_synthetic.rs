@@ -11,7 +11,7 @@ use covec::edit::{ReferenceParams, recolor_by_reference};
 use covec::pipeline::{self, Inputs, Masks, Mode, Quiet};
 use covec::render::Image;
 use covec::render::composite::composite;
-use covec::scene::Scene;
+use covec::scene::{LayerKind, Scene};
 use covec::synth::{self, SyntheticScene};
 use pipeline_support::quick_params;
 
@@ -84,16 +84,20 @@ fn three_layer_edits_follow_the_true_edit_better_than_albedo_only() {
         };
         let error = |scene: &Scene| {
             let edit = recolor_by_reference(scene, &original, &target, &params).unwrap();
-            assert!(!edit.changed.is_empty() && edit.changed.len() <= k);
+            let albedo = edit
+                .changed
+                .iter()
+                .filter(|c| c.path.layer == LayerKind::Albedo);
+            assert!((1..=k).contains(&albedo.count()), "k = {k}");
             mse(&composite(&edit.scene), &target)
         };
         curve.push((k, error(&photo), error(&simple)));
     }
     println!("K  photo-MSE  simple-MSE\n{curve:#?}");
-    // The bar is K ≤ 4. At K = 1 the photo model loses narrowly (0.0076 vs 0.0071 on
-    // this scene): its albedo splits the edited disc into more paths, so one path covers less of
-    // it. That is reported as not met, not hidden by a tuned seed.
-    for &(k, photo_error, simple_error) in curve.iter().filter(|c| c.0 == 2 || c.0 == 4) {
+    // The bar is K ≤ 4; it holds at every K. Before reference edits refit the edited
+    // object's own shade and light paths, the photo model lost narrowly at K = 1 (0.0076 vs
+    // 0.0071): its albedo splits the edited disc into more paths, so one path covers less of it.
+    for &(k, photo_error, simple_error) in &curve {
         assert!(
             photo_error < simple_error,
             "K = {k}: photo {photo_error} vs simple {simple_error}"

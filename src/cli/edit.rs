@@ -31,7 +31,7 @@ pub struct Args {
     /// Default: the scene's own rendering, which counts vectorisation error as edits too.
     #[arg(long, value_name = "IMAGE", requires = "reference")]
     pub original: Option<PathBuf>,
-    /// Recolour at most this many paths (largest first).
+    /// Recolour at most this many albedo paths (largest first).
     #[arg(long, default_value_t = ReferenceParams::default().k, requires = "reference")]
     pub k: usize,
     /// Edit-region threshold: mean absolute channel difference in [0, 1].

@@ -609,18 +609,35 @@ async function run(context, base) {
   });
 
   const noEditsApi = job ? await missingEditsApi(base, job.id) : null;
-  /** An edit recolours albedo paths only: the shade and light groups stay as they were. */
-  const checkLightingKept = async (original, edited) => {
-    const kept = await scratch.evaluate(
-      ({ a, b }) => {
+  /**
+   * An edit keeps the lighting: in the shade and light groups, every path the edit did not list
+   * as changed is as it was, and a listed one (a reference edit refits an object's own shade and
+   * light paths) differs in its fill only.
+   */
+  const checkLightingKept = async (original, edited, changed) => {
+    const listed = changed.map((c) => c.path);
+    const wrong = await scratch.evaluate(
+      ({ a, b, listed }) => {
         const parse = (text) => new DOMParser().parseFromString(text, "image/svg+xml");
         const [x, y] = [parse(a), parse(b)];
-        const same = (sel) => x.querySelector(sel)?.outerHTML === y.querySelector(sel)?.outerHTML;
-        return { shade: same("g#shade"), light: same("g#light") };
+        const wrong = [];
+        for (const group of ["shade", "light"]) {
+          const [gx, gy] = [x.querySelector(`g#${group}`), y.querySelector(`g#${group}`)];
+          const attrs = (g) => [...g.attributes].map((at) => `${at.name}=${at.value}`).join(" ");
+          if (attrs(gx) !== attrs(gy) || gx.children.length !== gy.children.length) wrong.push(group);
+          for (const [i, px] of [...gx.children].entries()) {
+            const py = gy.children[i];
+            const same = listed.includes(px.id)
+              ? py?.id === px.id && py.getAttribute("d") === px.getAttribute("d")
+              : py?.outerHTML === px.outerHTML;
+            if (!same) wrong.push(px.id);
+          }
+        }
+        return wrong;
       },
-      { a: original.toString("utf8"), b: edited.toString("utf8") },
+      { a: original.toString("utf8"), b: edited.toString("utf8"), listed },
     );
-    check(kept.shade && kept.light, `the edit changed the lighting layers: ${JSON.stringify(kept)}`);
+    check(wrong.length === 0, `the edit changed lighting it did not list: ${JSON.stringify(wrong)}`);
   };
   let target;
   await step("clicking the result picks the albedo path under the cursor", async () => {
@@ -681,7 +698,7 @@ async function run(context, base) {
     const editSvgUrl = edit.urls?.svg || `/v1/jobs/${job.id}/edits/${edit.id}/svg`;
     const editSvg = await apiBytes(base, editSvgUrl);
     check((await page.locator("#svg-host").getAttribute("data-sha256")) === sha256(editSvg), "page shows other bytes than the edit's SVG");
-    await checkLightingKept(jobSvg, editSvg);
+    await checkLightingKept(jobSvg, editSvg, edit.changed);
   }, { skip_because: noEditsApi });
 
   await step("undo brings the original back", async () => {
@@ -768,7 +785,7 @@ async function run(context, base) {
     check(visiblyChanged(change), `the picture hardly changed: ${JSON.stringify(change)}`);
     const editSvg = await apiBytes(base, `/v1/jobs/${job.id}/edits/${edit.id}/svg`);
     check((await page.locator("#svg-host").getAttribute("data-sha256")) === sha256(editSvg), "page shows other bytes than the edit's SVG");
-    await checkLightingKept(jobSvg, editSvg);
+    await checkLightingKept(jobSvg, editSvg, edit.changed);
     const saved = await downloadFrom(page.locator("#downloads a[data-kind=svg]"));
     check(saved.bytes.equals(editSvg), "the recoloured SVG downloaded is not the edit's");
     check(saved.name === `web_astronaut-${edit.id}.svg`, `saved as ${saved.name}`);
