@@ -334,6 +334,9 @@ fn refit_illumination(
     target: &Image,
 ) -> Vec<Changed> {
     let (width, height) = (edited.width as usize, edited.height as usize);
+    let Some(bounds) = pixel_bounds(object, width) else {
+        return Vec::new();
+    };
     let [albedo, mut shade, mut light] = crate::render::composite::render_layers(edited);
     // Each own path's paint weight per pixel (coverage × opacity × what later paths let
     // through), which does not depend on colours: the layer rendered black over black with
@@ -343,6 +346,10 @@ fn refit_illumination(
     for kind in [LayerKind::Shade, LayerKind::Light] {
         let paths = &edited.layer(kind).paths;
         for index in 0..paths.len() {
+            // Outside the object's bounds a path paints nothing inside it: no probe needed.
+            if !reaches(&paths[index], bounds) {
+                continue;
+            }
             let probe: Vec<Path> = paths
                 .iter()
                 .enumerate()
@@ -420,6 +427,34 @@ fn refit_illumination(
             })
         })
         .collect()
+}
+
+/// `[x0, y0, x1, y1]`: the box of the pixels (each `[x, x + 1] × [y, y + 1]`) set in `mask`, a
+/// `width`-wide mask; `None` when none is.
+fn pixel_bounds(mask: &[bool], width: usize) -> Option<[f32; 4]> {
+    let mut bounds: Option<[f32; 4]> = None;
+    for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        let (x, y) = ((i % width) as f32, (i / width) as f32);
+        let b = bounds.get_or_insert([x, y, x + 1.0, y + 1.0]);
+        *b = [
+            b[0].min(x),
+            b[1].min(y),
+            b[2].max(x + 1.0),
+            b[3].max(y + 1.0),
+        ];
+    }
+    bounds
+}
+
+/// Whether `path`'s control points' box (which holds its outline) meets `bounds` widened by a
+/// pixel, for anti-aliased edges.
+fn reaches(path: &Path, [x0, y0, x1, y1]: [f32; 4]) -> bool {
+    let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+    for p in &path.points {
+        lo = [lo[0].min(p.x), lo[1].min(p.y)];
+        hi = [hi[0].max(p.x), hi[1].max(p.y)];
+    }
+    hi[0] >= x0 - 1.0 && lo[0] <= x1 + 1.0 && hi[1] >= y0 - 1.0 && lo[1] <= y1 + 1.0
 }
 
 /// The topmost albedo path whose outline contains `point` (non-zero rule).
