@@ -6,6 +6,7 @@
 //! - [`recolor_by_reference`]: paper Appendix D, from an edited copy of the original image;
 //! - [`recolor_paths`]: set colours of named paths, or of the albedo path under a point.
 
+use crate::render::composite::{composite_layers, render_layers};
 use crate::render::{Image, Rasterizer};
 use crate::scene::{LayerKind, Path, PathId, Point, Scene};
 
@@ -198,16 +199,11 @@ pub fn recolor_by_reference(
         .collect();
 
     let mut rasterizer = Rasterizer::new();
-    let mut render_layer = |kind: LayerKind| {
-        let paths = &scene.layer(kind).paths;
-        (!paths.is_empty()).then(|| {
-            let mut image = Image::default();
-            rasterizer.render(paths, kind.base(), width, height, &mut image);
-            image
-        })
-    };
-    let shade = render_layer(LayerKind::Shade);
-    let light = render_layer(LayerKind::Light);
+    // Rendered once: the edit keeps them until the refit, which starts from them.
+    let layers = render_layers(scene);
+    let [_, shade_layer, light_layer] = &layers;
+    let shade = (!scene.shade.paths.is_empty()).then_some(shade_layer);
+    let light = (!scene.light.paths.is_empty()).then_some(light_layer);
 
     struct Candidate {
         index: usize,
@@ -246,10 +242,8 @@ pub fn recolor_by_reference(
         if change < params.delta {
             continue;
         }
-        let shade_mean = shade.as_ref().map(|s| masked_mean(s, &mask, area));
-        let light_mean = light
-            .as_ref()
-            .map_or([0.0; 3], |l| masked_mean(l, &mask, area));
+        let shade_mean = shade.map(|s| masked_mean(s, &mask, area));
+        let light_mean = light.map_or([0.0; 3], |l| masked_mean(l, &mask, area));
         candidates.push(Candidate {
             index,
             area,
@@ -284,12 +278,14 @@ pub fn recolor_by_reference(
         .zip(&edit_region)
         .map(|(o, &e)| e && o.is_some_and(|i| changed.iter().any(|c| c.path.index == i)))
         .collect();
-    let target = edited_target(scene, original, reference);
+    let target = edited_target(composite_layers(&layers), original, reference);
+    let [_, shade, light] = layers;
     changed.extend(refit_illumination(
         &mut rasterizer,
         &mut edited,
         &object,
         &target,
+        [shade, light],
     ));
     Ok(Edit {
         scene: edited,
@@ -304,11 +300,10 @@ const OWN_PATH_OUTSIDE: f64 = 0.25;
 /// Passes of the illumination refit over the object's own paths.
 const REFIT_ROUNDS: usize = 3;
 
-/// What the edited render should show: the unedited render plus the edit
+/// What the edited render should show: `target`, the unedited render, plus the edit
 /// (`reference − original`), so the refit transfers the edit rather than the photo's detail
 /// the scene never held.
-fn edited_target(scene: &Scene, original: &Image, reference: &Image) -> Image {
-    let mut target = crate::render::composite::composite(scene);
+fn edited_target(mut target: Image, original: &Image, reference: &Image) -> Image {
     for ((t, &o), &r) in target
         .data
         .iter_mut()
@@ -326,18 +321,21 @@ fn edited_target(scene: &Scene, original: &Image, reference: &Image) -> Image {
 /// (a red cap's shade is reddish): a new albedo alone under it cannot reach the new colour,
 /// and where it would need a channel above 1 it is clamped. Departure from the paper, which
 /// recolours albedo paths only; paths that reach outside the object are kept, so the edit
-/// still keeps to it.
+/// still keeps to it. `[shade, light]` are those layers rendered, as yet unedited.
 fn refit_illumination(
     rasterizer: &mut Rasterizer,
     edited: &mut Scene,
     object: &[bool],
     target: &Image,
+    [mut shade, mut light]: [Image; 2],
 ) -> Vec<Changed> {
     let (width, height) = (edited.width as usize, edited.height as usize);
     let Some(bounds) = pixel_bounds(object, width) else {
         return Vec::new();
     };
-    let [albedo, mut shade, mut light] = crate::render::composite::render_layers(edited);
+    let mut albedo = Image::default();
+    let base = LayerKind::Albedo.base();
+    rasterizer.render(&edited.albedo.paths, base, width, height, &mut albedo);
     // Each own path's paint weight per pixel (coverage × opacity × what later paths let
     // through), which does not depend on colours: the layer rendered black over black with
     // this path white.
