@@ -23,15 +23,16 @@ pub struct Args {
     /// The JSON scene written by `covec vectorize` (or the service's scene.json).
     pub scene: PathBuf,
     /// An edited copy of the original image: the albedo paths under the edited region take
-    /// its colours, divided by the shade under them; the shade and light paths lying (¾ or
-    /// more) inside the recoloured region are refit to it.
+    /// its colours, divided by the shade under them (in photo mode a path that also paints
+    /// outside the region is split: new paths over its parts inside take them); the shade and
+    /// light paths lying (¾ or more) inside the recoloured region are refit to it.
     #[arg(long, value_name = "EDITED.png", required_unless_present_any = ["set", "at"])]
     pub reference: Option<PathBuf>,
     /// The original image the reference was edited from (same aspect ratio as the reference).
     /// Default: the scene's own rendering, which counts vectorisation error as edits too.
     #[arg(long, value_name = "IMAGE", requires = "reference")]
     pub original: Option<PathBuf>,
-    /// Recolour at most this many albedo paths (largest first).
+    /// Recolour or add at most this many albedo paths (largest first).
     #[arg(long, default_value_t = ReferenceParams::default().k, requires = "reference")]
     pub k: usize,
     /// Edit-region threshold: mean absolute channel difference in [0, 1].

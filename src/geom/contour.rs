@@ -7,6 +7,13 @@
 
 use crate::scene::Point;
 
+/// Douglas-Peucker tolerance on an edge, in pixels: 1 px per 256 px of long side, at least 1
+/// (LayerVec uses 5 px at 512²; finer keeps small features for the 2-decimal SVG at no path
+/// cost).
+pub fn simplify_tolerance(width: usize, height: usize) -> f32 {
+    (width.max(height) as f32 / 256.0).max(1.0)
+}
+
 /// The outer boundary of the 4-connected region containing `start`, clockwise on screen
 /// (y down), as midpoints of its boundary pixel edges.
 ///

@@ -22,7 +22,7 @@ use crate::decompose::mask::Mask;
 use crate::decompose::organize::organize;
 use crate::decompose::segment::Candidate;
 use crate::decompose::{channel_sums, min_mask_area};
-use crate::geom::contour::simplify_closed;
+use crate::geom::contour::{simplify_closed, simplify_tolerance};
 use crate::perceptual::Grey;
 use crate::render::Image;
 use crate::scene::{LayerKind, Path, Point, Scene};
@@ -94,13 +94,6 @@ pub struct InitState {
     pub mode: ResolvedMode,
     /// Whether the albedo masks are the client's (see `super::keep`).
     pub masks_given: bool,
-}
-
-/// Douglas-Peucker tolerance on an edge, in pixels: 1 px per 256 px of long side, at least 1
-/// (LayerVec uses 5 px at 512²; finer keeps small features for the 2-decimal SVG at no path
-/// cost).
-pub fn simplify_tolerance(width: usize, height: usize) -> f32 {
-    (width.max(height) as f32 / 256.0).max(1.0)
 }
 
 /// How many times [`simplify_tolerance`] an outline may stray where the image is flat. There a

@@ -170,6 +170,10 @@ pub(super) enum EditKind {
     Reference,
 }
 
+/// A path the edit changed, with its fill before and after, by its id in the edited scene. A
+/// path a reference edit added in photo mode (over the edited part of an albedo path that also
+/// paints outside it, right above that path, so the ids of the albedo paths above move up) has
+/// `old_opacity` 0.
 #[derive(Serialize, Deserialize, ToSchema)]
 pub(super) struct ChangedView {
     pub path: String,
