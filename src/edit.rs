@@ -277,13 +277,14 @@ pub fn recolor_by_reference(
     };
     let mut edited = scene.clone();
     let mut changed = Vec::new();
-    let mut splits: Vec<Split> = Vec::new();
+    let mut splits = Vec::new();
     let mut edited_paths = Vec::new();
+    // Albedo paths recoloured or added so far, against `k`.
+    let mut used = 0;
     let min_part = min_mask_area(width, height);
     let near_edit = widened(&edit_region, width, height, RIM);
     for c in &candidates {
-        let budget = params.k - changed.len() - splits.iter().map(|s| s.paths.len()).sum::<usize>();
-        if budget == 0 {
+        if used == params.k {
             break;
         }
         edited_paths.push(c.index);
@@ -306,6 +307,7 @@ pub fn recolor_by_reference(
             let color = colour(c.reference_mean, c.shade_mean, c.light_mean);
             let path = &mut edited.albedo.paths[c.index];
             changed.push(set_fill(id, path, color, path.opacity));
+            used += 1;
             continue;
         }
         let color = colour(
@@ -321,16 +323,17 @@ pub fn recolor_by_reference(
             .filter(|&i| grown[i] && (edit_region[i] || owner[i].is_some_and(|o| o > c.index)))
             .collect();
         let tolerance = simplify_tolerance(width, height);
-        let paths = Mask::from_indices(width, height, &indices)
+        let paths: Vec<Path> = Mask::from_indices(width, height, &indices)
             .fill_holes()
             .components(min_part)
             .iter()
-            .take(budget)
+            .take(params.k - used)
             .filter_map(|part| {
                 let outline = simplify_closed(&part.outer_boundary(), |_| tolerance);
                 Path::from_polygon(&outline, color, opacity)
             })
             .collect();
+        used += paths.len();
         splits.push(Split {
             index: c.index,
             paths,
