@@ -710,6 +710,22 @@ mod tests {
         scene
     }
 
+    /// `image` (20 px wide) with the pixels `xs` × `ys` painted blue: a reference edit.
+    fn painted_blue(
+        image: &Image,
+        xs: std::ops::Range<usize>,
+        ys: std::ops::Range<usize>,
+    ) -> Image {
+        let mut painted = image.clone();
+        for y in ys {
+            for x in xs.clone() {
+                let i = 3 * (y * 20 + x);
+                painted.data[i..i + 3].copy_from_slice(&[0.0, 0.0, 1.0]);
+            }
+        }
+        painted
+    }
+
     #[test]
     fn picks_the_topmost_albedo_path_under_a_point() {
         let scene = scene_with_two_squares();
@@ -817,13 +833,7 @@ mod tests {
         let scene = scene_with_two_squares();
         let mut original = Image::default();
         Rasterizer::new().render(&scene.albedo.paths, [0.0; 3], 20, 20, &mut original);
-        let mut reference = original.clone();
-        for y in 2..10 {
-            for x in 2..10 {
-                let i = 3 * (y * 20 + x);
-                reference.data[i..i + 3].copy_from_slice(&[0.0, 0.0, 1.0]);
-            }
-        }
+        let reference = painted_blue(&original, 2..10, 2..10);
         let edit = recolor_by_reference(&scene, &original, &reference, &ReferenceParams::default())
             .unwrap();
         let changed: Vec<String> = edit.changed.iter().map(|c| c.path.to_string()).collect();
@@ -838,13 +848,7 @@ mod tests {
         scene.albedo.paths.push(green.clone());
         scene.shade.paths = vec![Path::rect(0.0, 0.0, 20.0, 20.0, [1.0; 3], 1.0)];
         let original = composite(&scene);
-        let mut reference = original.clone();
-        for y in 2..10 {
-            for x in 2..6 {
-                let i = 3 * (y * 20 + x);
-                reference.data[i..i + 3].copy_from_slice(&[0.0, 0.0, 1.0]);
-            }
-        }
+        let reference = painted_blue(&original, 2..6, 2..10);
         let edit = recolor_by_reference(&scene, &original, &reference, &ReferenceParams::default())
             .unwrap();
         // The left half of the red square gets a path of its own right above it; the square
