@@ -25,7 +25,7 @@ pub struct Args {
     /// An edited copy of the original image: the albedo paths under the edited region take
     /// its colours, divided by the shade under them (in photo mode a path that also paints
     /// outside the region is split: new paths over its parts inside take them); the shade and
-    /// light paths lying (¾ or more) inside the recoloured region are refit to it.
+    /// light paths lying (half or more) inside the recoloured region are refit to it.
     #[arg(long, value_name = "EDITED.png", required_unless_present_any = ["set", "at"])]
     pub reference: Option<PathBuf>,
     /// The original image the reference was edited from (same aspect ratio as the reference).

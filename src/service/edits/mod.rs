@@ -57,7 +57,7 @@ pub fn endpoints() -> Vec<Endpoint> {
         (viewBox coordinates). Multipart: recolour by an edited reference image of the job's \
         image size (paper Appendix D): the top `k` albedo paths by area that overlap the edited \
         region and change colour get the reference colour divided by the mean shade under them, \
-        and the shade and light paths lying (3/4 or more) inside the recoloured region are refit \
+        and the shade and light paths lying (half or more) inside the recoloured region are refit \
         to the reference. \
         `base` applies the edit on top of an earlier edit of the same job. A JSON body is at most \
         1 MiB (413 `body-too-large`) with at most 4096 changes (413 `too-many-changes`); a \
