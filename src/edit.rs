@@ -712,7 +712,7 @@ mod tests {
         scene
     }
 
-    /// `image` (20 px wide) with the pixels `xs` × `ys` painted blue: a reference edit.
+    /// `image` with the pixels `xs` × `ys` painted blue: a reference edit.
     fn painted_blue(
         image: &Image,
         xs: std::ops::Range<usize>,
@@ -721,7 +721,7 @@ mod tests {
         let mut painted = image.clone();
         for y in ys {
             for x in xs.clone() {
-                let i = 3 * (y * 20 + x);
+                let i = 3 * (y * image.width + x);
                 painted.data[i..i + 3].copy_from_slice(&[0.0, 0.0, 1.0]);
             }
         }
