@@ -364,7 +364,8 @@ impl<'a> Optimisation<'a> {
             self.coarse_count(coarse.polish_coarse(total, self.target.width, self.target.height));
         let polish_parts = coarse.polish_parts(coarse_count, self.halvings());
         let (settings, structure) = (&self.settings.polish, &self.settings.structure);
-        let weight = settings.similarity_weight(self.target.width * self.target.height);
+        let weight =
+            settings.similarity_weight(self.target.width * self.target.height, self.params.paths);
         let full_loss = PolishLoss::new(&self.target, weight);
         // The stage's loss before: the SVG model at full size, before any coarse iteration
         // (without one, the fine polish's first loss is that number).

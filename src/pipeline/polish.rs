@@ -28,8 +28,9 @@ pub(crate) struct PolishSettings {
     /// MSE alone (weight 0). The MSE rewards a blurred edge as much as a sharp one a pixel off;
     /// the term asks for the photo's edges where the photo has them. Default 0.01: on the bench
     /// photos it buys a clearly lower GMSD for a little MSE; 0.03 costs more MSE than it is
-    /// worth, and the term in the earlier stages as well costs time for a worse GMSD. This is the weight for images of up to 256² pixels; larger ones get
-    /// more ([`PolishSettings::similarity_weight`]).
+    /// worth, and the term in the earlier stages as well costs time for a worse GMSD. This is
+    /// the weight for images of up to 256² pixels at 64 paths; larger images and other budgets
+    /// get more ([`PolishSettings::similarity_weight`]).
     pub gradient_similarity: f32,
 }
 
@@ -44,13 +45,34 @@ const SIMILARITY_REFERENCE_SIDE: f32 = 256.0;
 /// that keeps the set's mean MSE no worse than without the growth.
 const SIMILARITY_SIZE_EXPONENT: f32 = 1.5;
 
+/// The path budget the set weight was chosen at (also the default budget, `Params::paths`).
+const SIMILARITY_REFERENCE_PATHS: f32 = 64.0;
+
+/// How the term's weight grows with the budget's ratio to [`SIMILARITY_REFERENCE_PATHS`],
+/// below it and above it. Away from 64 paths the MSE alone left edges that VTracer's files of
+/// the same gzip bytes draw better (GMSD above theirs at 8-32 paths on scene_chapel, at 256
+/// on six bench photos), while covec's MSE stayed at 0.19-0.93 of theirs: the weight buys
+/// GMSD there with MSE to spare. Exponents from `benches/quality/rd.sh` on the bench photos
+/// (docs/benchmarks.md): 1 below (8 paths: 8×); above, 1 left face_kodim17 at 256 paths
+/// above VTracer's GMSD, 1.3 (6×) did not.
+const SIMILARITY_PATHS_EXPONENTS: (f32, f32) = (1.0, 1.3);
+
 impl PolishSettings {
-    /// The gradient-similarity weight for a job whose full-size image has `pixels` pixels: the
-    /// set weight up to [`SIMILARITY_REFERENCE_SIDE`]², growing with the side above it. One
-    /// weight for a job's coarse and full-size parts, since both fit the same picture.
-    pub(crate) fn similarity_weight(&self, pixels: usize) -> f32 {
+    /// The gradient-similarity weight for a job whose full-size image has `pixels` pixels and
+    /// whose budget is `paths`: the set weight up to [`SIMILARITY_REFERENCE_SIDE`]² at
+    /// [`SIMILARITY_REFERENCE_PATHS`], growing with the side above it and with the budget's
+    /// distance from it. One weight for a job's coarse and full-size parts, since both fit the
+    /// same picture.
+    pub(crate) fn similarity_weight(&self, pixels: usize, paths: u32) -> f32 {
         let side_ratio = (pixels as f32).sqrt() / SIMILARITY_REFERENCE_SIDE;
-        self.gradient_similarity * side_ratio.max(1.0).powf(SIMILARITY_SIZE_EXPONENT)
+        let paths_ratio = paths as f32 / SIMILARITY_REFERENCE_PATHS;
+        let (below, above) = SIMILARITY_PATHS_EXPONENTS;
+        let paths_factor = if paths_ratio < 1.0 {
+            paths_ratio.recip().powf(below)
+        } else {
+            paths_ratio.powf(above)
+        };
+        self.gradient_similarity * side_ratio.max(1.0).powf(SIMILARITY_SIZE_EXPONENT) * paths_factor
     }
 }
 
@@ -261,9 +283,20 @@ mod tests {
     fn the_similarity_weight_grows_only_above_the_reference_size() {
         let settings = PolishSettings::default();
         let set = settings.gradient_similarity;
-        assert_eq!(settings.similarity_weight(64 * 64), set);
-        assert_eq!(settings.similarity_weight(256 * 256), set);
-        let at_512 = settings.similarity_weight(512 * 512);
+        assert_eq!(settings.similarity_weight(64 * 64, 64), set);
+        assert_eq!(settings.similarity_weight(256 * 256, 64), set);
+        let at_512 = settings.similarity_weight(512 * 512, 64);
         assert!((at_512 / set - 2f32.powf(1.5)).abs() < 1e-5, "{at_512}");
+    }
+
+    #[test]
+    fn the_similarity_weight_grows_away_from_the_reference_budget() {
+        let settings = PolishSettings::default();
+        let set = settings.gradient_similarity;
+        let ratio = |paths| settings.similarity_weight(256 * 256, paths) / set;
+        assert!((ratio(8) - 8.0).abs() < 1e-4, "{}", ratio(8));
+        assert!((ratio(32) - 2.0).abs() < 1e-5, "{}", ratio(32));
+        assert!((ratio(256) - 4f32.powf(1.3)).abs() < 1e-4, "{}", ratio(256));
+        assert!(ratio(128) > 1.0 && ratio(128) < ratio(256));
     }
 }
