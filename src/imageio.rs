@@ -239,6 +239,27 @@ pub fn resize_rgb(image: &DynamicImage, w: u32, h: u32) -> Image {
     }
 }
 
+/// The image at half size: each pixel the mean of a 2×2 block (edge pixels repeated where the
+/// block overhangs an odd size).
+pub fn halve_image(image: &Image) -> Image {
+    let (w, h) = (image.width, image.height);
+    let (hw, hh) = (w.div_ceil(2), h.div_ceil(2));
+    let mut out = Image::filled(hw, hh, [0.0; 3]);
+    for y in 0..hh {
+        for x in 0..hw {
+            let mut sum = [0.0f32; 3];
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let p = image.pixel((2 * x + dx).min(w - 1), (2 * y + dy).min(h - 1));
+                for c in 0..3 {
+                    sum[c] += p[c] / 4.0;
+                }
+            }
+            out.data[3 * (y * hw + x)..3 * (y * hw + x) + 3].copy_from_slice(&sum);
+        }
+    }
+    out
+}
+
 /// The media types of the image formats covec decodes (the `image` crate's features in
 /// Cargo.toml): what an input may be.
 pub const ACCEPTED_MEDIA_TYPES: [&str; 3] = ["image/png", "image/jpeg", "image/webp"];

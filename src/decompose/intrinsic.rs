@@ -37,7 +37,7 @@
 use rayon::prelude::*;
 
 use super::albedo::intensity;
-use super::segment::{DisjointSets, blur, felzenszwalb};
+use super::segment::{DisjointSets, blur, superpixels};
 use crate::render::Image;
 
 /// Minkowski norm of the grey-edge illuminant estimate.
@@ -132,7 +132,7 @@ pub fn albedo_map(image: &Image) -> Image {
             .collect(),
         ..image.clone()
     };
-    let labels = felzenszwalb(&blur(&corrected), SUPERPIXEL_K, (w * h / 4000).max(4));
+    let labels = superpixels(&corrected, SUPERPIXEL_K, 4000);
     let groups = group_surfaces(&corrected, &labels, illuminant);
     let surfaces = surfaces(&groups);
     let colours: Vec<[f32; 3]> = surfaces

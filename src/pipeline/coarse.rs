@@ -19,7 +19,6 @@
 //! edit-faithfulness check (`tests/edit_synthetic.rs`, photo beats albedo-only at K = 2).
 
 use crate::decompose::mask::Mask;
-use crate::render::Image;
 
 /// When and how much to run coarse.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -131,27 +130,6 @@ pub fn halvings_of<T>(value: &T, times: u32, halve: impl Fn(&T) -> T) -> Vec<T> 
     out
 }
 
-/// The image at half size: each pixel the mean of a 2×2 block (edge pixels repeated where the
-/// block overhangs an odd size).
-pub fn halve_image(image: &Image) -> Image {
-    let (w, h) = (image.width, image.height);
-    let (hw, hh) = (w.div_ceil(2), h.div_ceil(2));
-    let mut out = Image::filled(hw, hh, [0.0; 3]);
-    for y in 0..hh {
-        for x in 0..hw {
-            let mut sum = [0.0f32; 3];
-            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                let p = image.pixel((2 * x + dx).min(w - 1), (2 * y + dy).min(h - 1));
-                for c in 0..3 {
-                    sum[c] += p[c] / 4.0;
-                }
-            }
-            out.data[3 * (y * hw + x)..3 * (y * hw + x) + 3].copy_from_slice(&sum);
-        }
-    }
-    out
-}
-
 /// The mask at half size: a pixel is in when at least half of its 2×2 block is.
 pub fn halve_mask(mask: &Mask) -> Mask {
     let (w, h) = (mask.width(), mask.height());
@@ -231,6 +209,8 @@ impl Plateau {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::imageio::halve_image;
+    use crate::render::Image;
 
     #[test]
     fn the_full_size_polish_shrinks_with_the_side_above_512() {

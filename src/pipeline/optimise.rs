@@ -8,7 +8,7 @@
 //! segments up to the segment budget ([`super::segments`]). Every stage's iterations are
 //! [`super::descent::Descent`]'s loop.
 
-use super::coarse::{CoarseSettings, PlateauSettings, halve_image, halve_mask, halvings_of};
+use super::coarse::{CoarseSettings, PlateauSettings, halve_mask, halvings_of};
 use super::init::InitState;
 use super::keep::{Keep, KeepRun, KeepSettings};
 use super::params::{Error, Params, ResolvedMode};
@@ -22,6 +22,7 @@ use super::structure::{
     MaskGroup, Scratch, StructureRun, StructureSettings, optimise_structure, preview_two_layers,
     reconstruction_loss,
 };
+use crate::imageio::halve_image;
 use crate::render::Image;
 use crate::scene::{LayerKind, Scene};
 
