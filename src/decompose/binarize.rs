@@ -5,6 +5,8 @@
 //! become illumination masks. Regions are the visible parts of the albedo masks, a partition
 //! of the canvas, so every pixel is thresholded against exactly one region's mean.
 
+use rayon::prelude::*;
+
 use super::albedo::intensity;
 use super::mask::Mask;
 use super::segment::Candidate;
@@ -19,14 +21,21 @@ use crate::render::Image;
 /// surface's shading to the illumination layer, and a sphere's core shadow and terminator are
 /// two levels of it, not one.
 pub fn binarize(target: &Image, regions: &[Mask], min_area: usize, levels: u32) -> Vec<Candidate> {
-    let lum: Vec<f32> = (0..target.width * target.height)
-        .map(|i| intensity(target.pixel(i % target.width, i / target.width)))
+    let lum: Vec<f32> = target
+        .data
+        .par_chunks(3)
+        .map(|p| intensity([p[0], p[1], p[2]]))
         .collect();
-    let mut out = Vec::new();
-    for region in regions.iter().filter(|r| !r.is_empty()) {
-        threshold_region(&lum, region, min_area, levels, &mut out);
-    }
-    out
+    // Region by region on rayon's pool, collected in the regions' order.
+    regions
+        .par_iter()
+        .filter(|r| !r.is_empty())
+        .flat_map_iter(|region| {
+            let mut out = Vec::new();
+            threshold_region(&lum, region, min_area, levels, &mut out);
+            out
+        })
+        .collect()
 }
 
 /// One region's shadow components at its mean, then (for `levels` > 1) both halves again.
