@@ -13,6 +13,8 @@
 //! - Photo mode only; by default on the client's masks only (on covec's own segmentation
 //!   both terms cost bench MSE and did not raise VeC).
 
+use rayon::prelude::*;
+
 use super::coarse::halve_mask;
 use super::stage::Canvas;
 use super::structure::{
@@ -182,7 +184,7 @@ impl Keep {
             .groups
             .iter()
             .map(|g| MaskGroup {
-                masks: g.masks.iter().map(halve_mask).collect(),
+                masks: g.masks.par_iter().map(halve_mask).collect(),
                 ..g.clone()
             })
             .collect();

@@ -5,6 +5,8 @@
 //! The photo mode refines the illumination layer (`scene.shade`, multiplied onto the fixed
 //! albedo); the simple mode refines the albedo layer itself (the illumination is empty, i.e. 1).
 
+use rayon::prelude::*;
+
 use super::coarse::PlateauSettings;
 use super::descent::{Descent, Objective};
 use super::keep::{Keep, KeepRun, containment_term};
@@ -130,15 +132,17 @@ pub(crate) fn refine(
 
         canvas.render_layer(scene, growth.layer, &mut frozen);
         product(&frozen, &factor, &mut composite);
+        // Per pixel and per region on rayon's pool: at 1024² the full-size round's setup ran
+        // on one thread.
         let error: Vec<f32> = composite
             .data
-            .chunks_exact(3)
-            .zip(target.data.chunks_exact(3))
+            .par_chunks_exact(3)
+            .zip(target.data.par_chunks_exact(3))
             .map(|(p, t)| (0..3).map(|c| (p[c] - t[c]) * (p[c] - t[c])).sum())
             .collect();
         let regions = high_error_regions(&error, w, h, count);
         let mut new_paths: Vec<Path> = regions
-            .iter()
+            .par_iter()
             .filter_map(|r| region_path(r, target, &factor, w, settings, growth.color_max))
             .collect();
         while new_paths.len() < count {
