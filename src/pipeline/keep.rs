@@ -13,9 +13,6 @@
 //! - Photo mode only; by default on the client's masks only (on covec's own segmentation
 //!   both terms cost bench MSE and did not raise VeC).
 
-use rayon::prelude::*;
-
-use super::coarse::halve_mask;
 use super::stage::Canvas;
 use super::structure::{
     MaskGroup, PreparedGroup, Scratch, StructureSettings, prepare_groups, structure_loss,
@@ -178,16 +175,9 @@ impl Keep {
         }
     }
 
-    /// The same at half size (masks sampled as [`halve_mask`] does).
+    /// The same at half size ([`MaskGroup::halved`]).
     pub fn halved(&self) -> Self {
-        let groups: Vec<MaskGroup> = self
-            .groups
-            .iter()
-            .map(|g| MaskGroup {
-                masks: g.masks.par_iter().map(halve_mask).collect(),
-                ..g.clone()
-            })
-            .collect();
+        let groups = self.groups.iter().map(|g| g.halved(1)).collect();
         Self::from_groups(
             groups,
             self.width.div_ceil(2),

@@ -8,9 +8,7 @@
 //! segments up to the segment budget ([`super::segments`]). Every stage's iterations are
 //! [`super::descent::Descent`]'s loop.
 
-use rayon::prelude::*;
-
-use super::coarse::{CoarseSettings, PlateauSettings, halve_mask, halvings_of};
+use super::coarse::{CoarseSettings, PlateauSettings, halvings_of};
 use super::init::InitState;
 use super::keep::{Keep, KeepRun, KeepSettings};
 use super::params::{Error, Params, ResolvedMode};
@@ -250,19 +248,7 @@ impl<'a> Optimisation<'a> {
         let groups = std::mem::take(&mut self.groups);
         let halvings = self.halvings();
         let coarse = self.coarse(halvings, |small, small_target| {
-            // Masks halved on rayon's pool: at 1024², one by one, they held up the other core
-            // for about a tenth of a second.
-            let small_groups: Vec<MaskGroup> = groups
-                .iter()
-                .map(|g| MaskGroup {
-                    masks: g
-                        .masks
-                        .par_iter()
-                        .filter_map(|m| halvings_of(m, halvings, halve_mask).pop())
-                        .collect(),
-                    ..g.clone()
-                })
-                .collect();
+            let small_groups: Vec<MaskGroup> = groups.iter().map(|g| g.halved(halvings)).collect();
             optimise_structure(small, &small_groups, small_target, &run, stage)
         });
         let losses = match coarse {
