@@ -15,7 +15,6 @@ use super::params::{Error, Params, ResolvedMode};
 use super::polish::{self, PolishLoss, PolishSettings};
 use super::reconstruct::{ReconstructionRun, optimise_reconstruction};
 use super::refine::{Growth, RefinePlan, RefineSettings, refine};
-use super::regions::RegionRank;
 use super::segments::SplitPlan;
 use super::split::{SplitReport, split_layers};
 use super::stage::{Canvas, IterationSpan, StageKind, StageRun};
@@ -303,12 +302,10 @@ impl<'a> Optimisation<'a> {
             ResolvedMode::Simple => Growth {
                 layer: LayerKind::Albedo,
                 color_max: 1.0,
-                rank: RegionRank::Size,
             },
             ResolvedMode::Photo => Growth {
                 layer: LayerKind::Shade,
                 color_max: self.settings.structure.illumination_cap,
-                rank: RegionRank::ColourDistance,
             },
         };
         let coarse_rounds = it

@@ -11,7 +11,7 @@ use super::coarse::PlateauSettings;
 use super::descent::{Descent, Objective};
 use super::keep::{Keep, KeepRun, containment_term};
 use super::params::Error;
-use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, RegionRank, high_error_regions};
+use super::regions::{Ellipse, REGION_PATH_SEGMENTS, Region, high_error_regions};
 use super::stage::{Canvas, IterationSpan, StageRun, strip_ranges};
 use super::structure::Scratch;
 use crate::optim::loss::PartialMse;
@@ -56,13 +56,12 @@ impl Default for RefineSettings {
     }
 }
 
-/// Which layer grows, the colour range of its paths, and which error regions get them first.
+/// Which layer grows, and the colour range of its paths.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Growth {
     /// `Shade` (the illumination layer before separation) or `Albedo` (simple mode).
     pub layer: LayerKind,
     pub color_max: f32,
-    pub rank: RegionRank,
 }
 
 /// One call of [`refine`]: which rounds, how, into which layer.
@@ -141,7 +140,7 @@ pub(crate) fn refine(
             .zip(target.data.par_chunks_exact(3))
             .map(|(p, t)| (0..3).map(|c| (p[c] - t[c]) * (p[c] - t[c])).sum())
             .collect();
-        let regions = high_error_regions(&error, (w, h), count, growth.rank);
+        let regions = high_error_regions(&error, w, h, count);
         let mut new_paths: Vec<Path> = regions
             .par_iter()
             .filter_map(|r| region_path(r, target, &factor, w, settings, growth.color_max))

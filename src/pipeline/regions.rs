@@ -17,29 +17,11 @@ pub const ERROR_FLOOR: f32 = 0.025;
 /// 18% lower final MSE (6 bench photos at 64 paths: 0.00306 → 0.00252).
 const QUANTILE_EDGES: usize = 4;
 
-/// How [`high_error_regions`] ranks its regions, first first.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum RegionRank {
-    /// By size (LayerVec). Flat artwork (simple mode): by colour distance its paths went to the
-    /// thin, very wrong slivers along edges, and the bench emoji's MSE rose 7 %, GMSD 3 %.
-    Size,
-    /// By the sum of the pixels' colour distances to the target (the square root of each
-    /// pixel's error). By size alone, a small, very wrong region (the eyes and mouth of a small
-    /// face on a flat skin path) stays behind every large, slightly wrong one; by the squared
-    /// error the small ones win too often (the bench photos' GMSD rose 2.8 %).
-    ColourDistance,
-}
-
-/// Up to `count` connected regions of similar, high error, ranked by `rank`. The error
-/// (`width × height` values) is split into quantile bins (LayerVec's `select_mask_by_conn_area`,
-/// with coarser bins, see [`QUANTILE_EDGES`]); each bin's 4-connected components are ranked over
-/// all bins. Pixels below [`ERROR_FLOOR`] never count.
-pub fn high_error_regions(
-    error: &[f32],
-    (width, height): (usize, usize),
-    count: usize,
-    rank: RegionRank,
-) -> Vec<Region> {
+/// Up to `count` largest connected regions of similar, high error. The error (`width × height`
+/// values) is split into quantile bins; each bin's 4-connected components are ranked by size over
+/// all bins (LayerVec's `select_mask_by_conn_area`, with coarser bins, see [`QUANTILE_EDGES`]).
+/// Pixels below [`ERROR_FLOOR`] never count.
+pub fn high_error_regions(error: &[f32], width: usize, height: usize, count: usize) -> Vec<Region> {
     if count == 0 {
         return Vec::new();
     }
@@ -103,14 +85,15 @@ pub fn high_error_regions(
         }
         regions.push(Region { pixels });
     }
-    let weight = |r: &Region| match rank {
-        RegionRank::Size => r.pixels.len() as f64,
-        RegionRank::ColourDistance => r.pixels.iter().map(|&p| f64::from(error[p]).sqrt()).sum(),
-    };
-    let mut ranked: Vec<(f64, Region)> = regions.into_iter().map(|r| (weight(&r), r)).collect();
-    // Ties by first pixel, so that the order is deterministic.
-    ranked.sort_by(|(wa, a), (wb, b)| wb.total_cmp(wa).then(a.pixels[0].cmp(&b.pixels[0])));
-    ranked.into_iter().take(count).map(|(_, r)| r).collect()
+    // Largest first; ties by first pixel so the order is deterministic.
+    regions.sort_by(|a, b| {
+        b.pixels
+            .len()
+            .cmp(&a.pixels.len())
+            .then(a.pixels[0].cmp(&b.pixels[0]))
+    });
+    regions.truncate(count);
+    regions
 }
 
 /// Number of cubic segments of a new region path: enough to bend around an irregular region.
@@ -215,28 +198,25 @@ mod tests {
     use super::*;
 
     #[test]
-    fn regions_are_connected_and_ranked_by_size_or_colour_distance() {
+    fn regions_are_connected_and_ranked_by_size() {
         let (w, h) = (10, 6);
         let mut error = vec![0.0f32; w * h];
         for y in 0..3 {
             for x in 0..4 {
-                error[y * w + x] = 0.09; // 12 px at distance 0.3: 3.6
+                error[y * w + x] = 0.5; // 12 px
             }
         }
         for y in 4..6 {
             for x in 7..9 {
-                error[y * w + x] = 1.0; // 4 px at distance 1, not connected: 4
+                error[y * w + x] = 0.5; // 4 px, same bin, not connected
             }
         }
         error[5 * w] = 0.01; // below the floor
-        let sizes = |rank| {
-            let regions = high_error_regions(&error, (w, h), 5, rank);
-            regions.iter().map(|r| r.pixels.len()).collect::<Vec<_>>()
-        };
-        assert_eq!(sizes(RegionRank::Size), [12, 4]);
-        assert_eq!(sizes(RegionRank::ColourDistance), [4, 12]);
-        let first = high_error_regions(&error, (w, h), 1, RegionRank::Size);
-        assert_eq!(first.len(), 1);
+        let regions = high_error_regions(&error, w, h, 5);
+        assert_eq!(regions.len(), 2);
+        assert_eq!(regions[0].pixels.len(), 12);
+        assert_eq!(regions[1].pixels.len(), 4);
+        assert_eq!(high_error_regions(&error, w, h, 1).len(), 1);
     }
 
     #[test]
