@@ -355,6 +355,7 @@ impl<'a> Optimisation<'a> {
             self.coarse_count(coarse.polish_coarse(total, self.target.width, self.target.height));
         let polish_parts = coarse.polish_parts(coarse_count, self.halvings());
         let (settings, structure) = (&self.settings.polish, &self.settings.structure);
+        let mode = self.mode;
         let weight =
             settings.similarity_weight(self.target.width * self.target.height, self.params.paths);
         let full_loss = PolishLoss::new(&self.target, weight);
@@ -373,7 +374,14 @@ impl<'a> Optimisation<'a> {
                 &full_loss
             };
             let keep = part.keep.map(|r| (r, structure));
-            polish::polish(scene, (target, loss), part.span, settings, keep, stage)
+            polish::polish(
+                scene,
+                (target, loss),
+                part.span,
+                (settings, mode),
+                keep,
+                stage,
+            )
         });
         let [initial, after] = fine?;
         self.record(stage, before.unwrap_or(initial), after);
