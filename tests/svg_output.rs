@@ -204,11 +204,11 @@ fn rounded_coordinates_draw_as_the_full_precision_scene() {
         "vs covec's render: {compact_error:.3}/255 rounded, {full_error:.3}/255 full precision"
     );
     // A point moves by at most 0.125 px (half the quarter-pixel grid); on this 64×48 scene that
-    // is 0.27/255 of the picture (the vectorised scene varies with the pipeline, hence the
-    // margin).
+    // was 0.27/255 of the picture, and 0.353/255 once the polish moved points a pixel a step
+    // (18ca1c3): the vectorised scene's edges vary with the pipeline, hence the margin.
     let change = mean_abs_255(&compact, &full);
     assert!(
-        change < 0.35,
+        change < 0.45,
         "rounding changed resvg's drawing by {change:.3}/255"
     );
 }
