@@ -3,6 +3,8 @@
 //! file is optimal for what is displayed rather than for the unclamped two-layer model. Its loss
 //! adds a gradient-similarity term to the MSE ([`PolishSettings::gradient_similarity`]).
 
+use rayon::prelude::*;
+
 use super::coarse::PlateauSettings;
 use super::descent::{Descent, Objective};
 use super::keep::{Held, KeepRun};
@@ -132,7 +134,7 @@ pub(crate) fn model_loss(
     target: &Image,
     loss: &PolishLoss,
 ) -> f32 {
-    SvgModel::default().render(canvas, scene, (target, loss))
+    SvgModel::new(target.width, target.height).render(canvas, scene, (target, loss))
 }
 
 /// Runs up to the span's iterations of joint steps (from [`into_range`]) and returns the loss of
@@ -153,7 +155,7 @@ pub(crate) fn polish(
         .map(|_| Adam::new(settings.adam(mode), Bounds::canvas(w, h, 1.0)))
         .collect();
     into_range(scene);
-    let mut model = SvgModel::default();
+    let mut model = SvgModel::new(w, h);
     let initial = model.render(&mut canvas, scene, (target, loss_of));
     let held = keep.map(|(k, structure)| {
         k.held(
@@ -209,10 +211,11 @@ impl Objective<Scene> for Joint<'_> {
 
     fn gradient(&mut self, canvas: &mut Canvas, scene: &Scene, grads: &mut [Vec<PathGrad>]) {
         let SvgModel {
+            others: [shade, light],
             layers,
             d_composite,
             ..
-        } = &self.model;
+        } = &mut self.model;
         let [d_a, d_s, d_l] = &mut self.d_layers;
         svg_model_backward(
             &layers[0],
@@ -223,15 +226,19 @@ impl Objective<Scene> for Joint<'_> {
             d_s,
             d_l,
         );
-        for (k, (kind, grads)) in LayerKind::ALL.into_iter().zip(grads).enumerate() {
-            let paths = &scene.layer(kind).paths;
-            canvas
-                .raster
-                .backward(paths, kind.base(), &self.d_layers[k], grads);
-            if let Some(held) = &self.held {
-                held.add_term(canvas, kind, paths, grads);
-            }
-        }
+        let held = &self.held;
+        [canvas, shade, light]
+            .into_par_iter()
+            .zip(grads.par_iter_mut())
+            .zip(self.d_layers.par_iter())
+            .zip(LayerKind::ALL.par_iter())
+            .for_each(|(((canvas, grads), d_layer), &kind)| {
+                let paths = &scene.layer(kind).paths;
+                canvas.raster.backward(paths, kind.base(), d_layer, grads);
+                if let Some(held) = held {
+                    held.add_term(canvas, kind, paths, grads);
+                }
+            });
     }
 
     fn hold(&self, set: usize, grads: &mut [PathGrad]) {
@@ -279,24 +286,40 @@ impl PolishLoss {
 }
 
 /// The three layers, the SVG composite and its loss gradient, as last rendered.
-#[derive(Default)]
 struct SvgModel {
+    /// The shade's and the light's canvases (the albedo's is the caller's), so the layers
+    /// render, and their backwards run, side by side: at the polish's coarse sizes one
+    /// layer's strips are too few to keep every thread busy.
+    others: [Canvas; 2],
     layers: [Image; 3],
     composite: Image,
     d_composite: Image,
 }
 
 impl SvgModel {
-    /// Renders the three layers and the SVG composite; returns the loss and writes its gradient.
+    fn new(width: usize, height: usize) -> Self {
+        Self {
+            others: std::array::from_fn(|_| Canvas::new(width, height)),
+            layers: Default::default(),
+            composite: Image::default(),
+            d_composite: Image::default(),
+        }
+    }
+
+    /// Renders the three layers (the albedo on `canvas`) and the SVG composite; returns the
+    /// loss and writes its gradient.
     fn render(
         &mut self,
         canvas: &mut Canvas,
         scene: &Scene,
         (target, loss): (&Image, &PolishLoss),
     ) -> f32 {
-        for (k, kind) in LayerKind::ALL.into_iter().enumerate() {
-            canvas.render_layer(scene, kind, &mut self.layers[k]);
-        }
+        let [shade, light] = &mut self.others;
+        [canvas, shade, light]
+            .into_par_iter()
+            .zip(self.layers.par_iter_mut())
+            .zip(LayerKind::ALL.par_iter())
+            .for_each(|((canvas, layer), &kind)| canvas.render_layer(scene, kind, layer));
         let [a, s, l] = &self.layers;
         svg_model(a, s, l, &mut self.composite);
         loss.of(&self.composite, target, &mut self.d_composite)

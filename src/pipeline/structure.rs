@@ -125,9 +125,18 @@ pub(crate) fn optimise_structure(
         plateau: PlateauSettings::never(),
     };
     let structure = |_: &mut Canvas, scene: &Scene, scratch| {
+        let groups: Vec<PreparedGroup> = prepare_groups(scene, groups, w, h, seed)?
+            .into_iter()
+            .filter(trains)
+            .collect();
+        let workspaces = groups
+            .iter()
+            .map(|_| (Canvas::new(w, h), Scratch::default()))
+            .collect();
         Ok(Structure {
             scratch,
-            groups: prepare_groups(scene, groups, w, h, seed)?,
+            groups,
+            workspaces,
             settings,
         })
     };
@@ -163,10 +172,19 @@ pub(crate) fn descend_two_layers<O: Objective<Scene> + AsMut<Scratch>>(
     Ok([initial, after])
 }
 
-/// The structure loss of every mask group, on sets 0 (albedo) and 1 (illumination).
+/// Whether the structure loss of `group` trains anything. A group holding only the albedo
+/// base does not (its geometry and opacity are held, and this loss leaves colours alone).
+fn trains(group: &PreparedGroup) -> bool {
+    !(group.layer == LayerKind::Albedo && group.paths == [0])
+}
+
+/// The structure loss of every mask group that [`trains`], on sets 0 (albedo) and 1
+/// (illumination).
 struct Structure<'a> {
     scratch: Scratch,
     groups: Vec<PreparedGroup>,
+    /// A canvas and buffers for each group, so the groups' losses run side by side.
+    workspaces: Vec<(Canvas, Scratch)>,
     settings: &'a StructureSettings,
 }
 
@@ -177,24 +195,24 @@ impl AsMut<Scratch> for Structure<'_> {
 }
 
 impl Objective<Scene> for Structure<'_> {
-    fn loss(&mut self, canvas: &mut Canvas, scene: &Scene, grads: &mut [Vec<PathGrad>]) -> f32 {
+    fn loss(&mut self, _: &mut Canvas, scene: &Scene, grads: &mut [Vec<PathGrad>]) -> f32 {
+        let settings = self.settings;
+        let parts: Vec<GroupLoss> = self
+            .groups
+            .par_iter()
+            .zip(self.workspaces.par_iter_mut())
+            .map(|(group, (canvas, scratch))| {
+                let paths = &scene.layer(group.layer).paths;
+                group_loss(canvas, paths, group, settings, scratch)
+            })
+            .collect();
+        // Summed in the sets' order, each set's groups in turn, as one thread would.
         let mut loss = 0.0;
         for (kind, grads) in [LayerKind::Albedo, LayerKind::Shade].into_iter().zip(grads) {
-            // A group holding only the albedo base trains nothing (its geometry and opacity
-            // are held, and this loss leaves colours alone): skip its renders.
-            let trainable = |g: &&PreparedGroup| {
-                g.layer == kind && !(kind == LayerKind::Albedo && g.paths == [0])
-            };
-            for group in self.groups.iter().filter(trainable) {
-                loss += structure_loss(
-                    canvas,
-                    &scene.layer(kind).paths,
-                    group,
-                    self.settings,
-                    1.0,
-                    grads,
-                    &mut self.scratch,
-                );
+            for (group, part) in self.groups.iter().zip(&parts) {
+                if group.layer == kind {
+                    loss += part.add_to(group, 1.0, grads);
+                }
             }
         }
         loss
@@ -230,6 +248,10 @@ fn layer_adams(settings: &StructureSettings, w: usize, h: usize) -> [Adam; 2] {
 /// Reusable buffers of a two-factor model `C = A·B` and its gradients.
 #[derive(Default)]
 pub(crate) struct Scratch {
+    /// A second canvas, made on first use, on which `B` renders (and its backward runs)
+    /// beside `A` on the caller's: one layer's strips are too few to keep every thread busy
+    /// at the coarse sizes.
+    second: Option<Canvas>,
     pub a: Image,
     pub b: Image,
     pub c: Image,
@@ -246,21 +268,29 @@ pub(crate) fn reconstruction_loss(
     s: &mut Scratch,
     grads: Option<(&mut Vec<PathGrad>, &mut Vec<PathGrad>)>,
 ) -> f32 {
-    canvas.render_layer(scene, LayerKind::Albedo, &mut s.a);
-    canvas.render_layer(scene, LayerKind::Shade, &mut s.b);
+    let size = (canvas.width, canvas.height);
+    let second = match &mut s.second {
+        Some(second) if (second.width, second.height) == size => second,
+        slot => slot.insert(Canvas::new(size.0, size.1)),
+    };
+    rayon::join(
+        || canvas.render_layer(scene, LayerKind::Albedo, &mut s.a),
+        || second.render_layer(scene, LayerKind::Shade, &mut s.b),
+    );
     product(&s.a, &s.b, &mut s.c);
     let loss = mse(&s.c, target, &mut s.d_c);
     if let Some((grads_a, grads_i)) = grads {
         product_backward(&s.a, &s.b, &s.d_c, &mut s.d_a, &mut s.d_b);
-        canvas.raster.backward(
-            &scene.albedo.paths,
-            LayerKind::Albedo.base(),
-            &s.d_a,
-            grads_a,
+        rayon::join(
+            || {
+                let (paths, base) = (&scene.albedo.paths, LayerKind::Albedo.base());
+                canvas.raster.backward(paths, base, &s.d_a, grads_a)
+            },
+            || {
+                let (paths, base) = (&scene.shade.paths, LayerKind::Shade.base());
+                second.raster.backward(paths, base, &s.d_b, grads_i)
+            },
         );
-        canvas
-            .raster
-            .backward(&scene.shade.paths, LayerKind::Shade.base(), &s.d_b, grads_i);
     }
     loss
 }
@@ -351,6 +381,40 @@ pub(crate) fn structure_loss(
     grads: &mut [PathGrad],
     s: &mut Scratch,
 ) -> f32 {
+    group_loss(canvas, paths, group, settings, s).add_to(group, scale, grads)
+}
+
+/// One group's structure loss and its gradients for the group's paths, in its order.
+struct GroupLoss {
+    loss: f32,
+    /// Of the mask term.
+    mask: Vec<PathGrad>,
+    /// Of the overlap term.
+    overlap: Vec<PathGrad>,
+}
+
+impl GroupLoss {
+    /// Adds `scale` × the gradients into the layer's `grads`; returns the loss.
+    fn add_to(&self, group: &PreparedGroup, scale: f32, grads: &mut [PathGrad]) -> f32 {
+        for ((&i, g), gg) in group.paths.iter().zip(&self.mask).zip(&self.overlap) {
+            let out = &mut grads[i];
+            for ((o, a), b) in out.points.iter_mut().zip(&g.points).zip(&gg.points) {
+                o.x += scale * (a.x + b.x);
+                o.y += scale * (a.y + b.y);
+            }
+            out.opacity += scale * g.opacity;
+        }
+        self.loss
+    }
+}
+
+fn group_loss(
+    canvas: &mut Canvas,
+    paths: &[Path],
+    group: &PreparedGroup,
+    settings: &StructureSettings,
+    s: &mut Scratch,
+) -> GroupLoss {
     let colored: Vec<Path> = group
         .paths
         .iter()
@@ -388,14 +452,9 @@ pub(crate) fn structure_loss(
     canvas
         .raster
         .backward(&grey, [1.0; 3], &s.d_b, &mut grey_grads);
-
-    for ((&i, g), gg) in group.paths.iter().zip(&local).zip(&grey_grads) {
-        let out = &mut grads[i];
-        for ((o, a), b) in out.points.iter_mut().zip(&g.points).zip(&gg.points) {
-            o.x += scale * (a.x + b.x);
-            o.y += scale * (a.y + b.y);
-        }
-        out.opacity += scale * g.opacity;
+    GroupLoss {
+        loss: mask_loss + overlap,
+        mask: local,
+        overlap: grey_grads,
     }
-    mask_loss + overlap
 }
