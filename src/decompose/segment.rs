@@ -160,23 +160,25 @@ pub(super) fn felzenszwalb(image: &Image, k: f32, min_size: usize) -> Vec<u32> {
             .sqrt()
     };
     let steps = EdgeKey::steps(w);
-    let mut edges = Vec::with_capacity(w * h * 4);
-    for y in 0..h {
-        for x in 0..w {
-            let i = y * w + x;
-            let present = [
-                x + 1 < w,
-                y + 1 < h,
-                y + 1 < h && x + 1 < w,
-                y + 1 < h && x > 0,
-            ];
-            for (direction, step) in steps.iter().enumerate() {
-                if present[direction] {
-                    edges.push(EdgeKey::new(colour_distance(i, i + step), i, direction));
-                }
-            }
-        }
-    }
+    // Row by row on rayon's pool, in listing order: the distances' square roots took about
+    // a third of this function's time on one thread.
+    let edges: Vec<EdgeKey> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            (0..w).flat_map(move |x| {
+                let i = y * w + x;
+                let present = [
+                    x + 1 < w,
+                    y + 1 < h,
+                    y + 1 < h && x + 1 < w,
+                    y + 1 < h && x > 0,
+                ];
+                (0..4)
+                    .filter(move |&d| present[d])
+                    .map(move |d| EdgeKey::new(colour_distance(i, i + steps[d]), i, d))
+            })
+        })
+        .collect();
     let edges = EdgeKey::sort(edges);
     let mut sets = DisjointSets::new(w * h);
     let mut threshold = vec![k; w * h];

@@ -70,11 +70,20 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
     let (ow, oh) = (inputs.image.width(), inputs.image.height());
     let (w, h) = working_size(ow, oh, params.max_size);
     let target = resize_rgb(&inputs.image, w, h);
-    let (mode, mode_reason) = resolve_mode(params.mode, &inputs.image, &target);
+    let own_albedo = || intrinsic::albedo_map(&target);
+    let resolve = || resolve_mode(params.mode, &inputs.image, &target);
+    // `auto` looks at the image while our own albedo map is made beside it, in case it goes
+    // photo (both are mostly serial); the map is dropped if it goes simple.
+    let ((mode, mode_reason), made) = if params.mode == Mode::Auto && inputs.albedo.is_none() {
+        let (resolved, albedo) = rayon::join(resolve, own_albedo);
+        (resolved, Some(albedo))
+    } else {
+        (resolve(), None)
+    };
     let albedo = match (&inputs.albedo, mode) {
         (Some(map), _) => resize_rgb(map, w, h),
         (None, ResolvedMode::Simple) => target.clone(),
-        (None, ResolvedMode::Photo) => intrinsic::albedo_map(&target),
+        (None, ResolvedMode::Photo) => made.unwrap_or_else(own_albedo),
     };
     let (w, h) = (w as usize, h as usize);
     let min_area = min_mask_area(w, h);
