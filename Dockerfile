@@ -27,8 +27,9 @@ ENV CARGO_PROFILE_RELEASE_DEBUG=false \
 # (what cargo-chef does, without a tool to install): the package's manifest over empty sources.
 # Layer caching works with every builder and with exported build caches (--cache-to), which
 # BuildKit's cache mounts do not reach. The manifest's [[bench]] needs its file to exist; it
-# is never built here.
+# is never built here. vendor/ holds a patched dependency (vendor/README.md).
 COPY Cargo.toml Cargo.lock ./
+COPY vendor vendor
 RUN mkdir src benches \
  && echo 'fn main() {}' > src/main.rs \
  && cp src/main.rs benches/render.rs \
