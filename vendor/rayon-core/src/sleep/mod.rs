@@ -53,8 +53,8 @@ struct WorkerSleepState {
     condvar: Condvar,
 }
 
-// covec: 3000, not rayon's 32 (see vendor/README.md). An idle thread yields for about a
-// millisecond before it sleeps, so the next of a run's short parallel loops finds it awake.
+// covec: 3000, not rayon's 32 (see vendor/README.md). An idle thread yields for one to two
+// milliseconds before it sleeps, so the next of a run's short parallel loops finds it awake.
 const ROUNDS_UNTIL_SLEEPY: u32 = 3000;
 const ROUNDS_UNTIL_SLEEPING: u32 = ROUNDS_UNTIL_SLEEPY + 1;
 
