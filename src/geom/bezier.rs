@@ -4,6 +4,8 @@
 //! given render, each flattened vertex is a fixed linear combination of the four control points
 //! (`B(t) = Σ_j b_j(t) P_j`), which is how gradients reach the control points exactly.
 
+use std::sync::LazyLock;
+
 use crate::scene::Point;
 
 /// Default flattening tolerance in pixels: the largest distance between a cubic and its
@@ -26,7 +28,12 @@ pub fn bernstein(t: f32) -> [f32; 4] {
 /// The point at parameter `t` of the cubic with control points `c`.
 #[inline]
 pub fn eval(c: &[Point; 4], t: f32) -> Point {
-    let w = bernstein(t);
+    eval_weighted(c, bernstein(t))
+}
+
+/// The point of the cubic with control points `c` whose Bernstein weights are `w`.
+#[inline]
+pub fn eval_weighted(c: &[Point; 4], w: [f32; 4]) -> Point {
     Point::new(
         w[0] * c[0].x + w[1] * c[1].x + w[2] * c[2].x + w[3] * c[3].x,
         w[0] * c[0].y + w[1] * c[1].y + w[2] * c[2].y + w[3] * c[3].y,
@@ -69,6 +76,32 @@ pub fn lines_for_tolerance(c: &[Point; 4], tolerance: f32) -> u32 {
 #[inline]
 pub fn parameter(k: u32, n: u32) -> f32 {
     k as f32 / n as f32
+}
+
+/// Line counts whose vertex weights [`weights`] reads from a table: a cubic is flattened into
+/// at least 16 lines (the renderer's minimum) and, at the working sizes, rarely more than 64.
+/// The table is 2 080 entries, 33 KiB.
+const TABLED_LINES: u32 = 64;
+
+/// `bernstein(parameter(k, n))` for `n = 1..=TABLED_LINES`, `k = 0..n`: entry `n(n−1)/2 + k`.
+static WEIGHT_TABLE: LazyLock<Vec<[f32; 4]>> = LazyLock::new(|| {
+    (1..=TABLED_LINES)
+        .flat_map(|n| (0..n).map(move |k| bernstein(parameter(k, n))))
+        .collect()
+});
+
+/// The Bernstein weights of the `n` flattened vertices `B(t_k)`, `k = 0..n`, exactly
+/// `bernstein(parameter(k, n))`: the renderer needs them for every vertex of every render and
+/// its backward, so the common counts come from a table; others are computed into `buffer`.
+pub fn weights(n: u32, buffer: &mut Vec<[f32; 4]>) -> &[[f32; 4]] {
+    if (1..=TABLED_LINES).contains(&n) {
+        let start = (n * (n - 1) / 2) as usize;
+        &WEIGHT_TABLE[start..start + n as usize]
+    } else {
+        buffer.clear();
+        buffer.extend((0..n).map(|k| bernstein(parameter(k, n))));
+        buffer
+    }
 }
 
 /// Appends the flattened vertices `B(t_k)` for `k = 0..n` (the end point `B(1)` is left out: in

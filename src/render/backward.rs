@@ -1,7 +1,7 @@
 //! The backward pass: dLoss/dPixel → dLoss/d(control points, colour, opacity).
 //!
 //! Work is split into bands of [`STRIP_ROWS`] rows, one rayon task each, and every band writes
-//! its own partial gradients; [`Totals::reduce`] adds them in band order, so the result does not
+//! its own partial gradients; [`add_bands_into`] adds them in band order, so the result does not
 //! depend on the thread count. Inside a band, passes of `rows_per_pass` rows:
 //! 1. the signed areas of every path meeting the pass, kept for whole [`GROUP`]s of pixels: the
 //!    forward's (when it kept them) or scan-converted again;
@@ -103,6 +103,8 @@ pub(super) struct Workspace {
     /// dL/d(signed area).
     area: Vec<f32>,
     rows: RowWork,
+    /// One path's dL/d flattened vertex, summed over the bands.
+    vert_sums: Vec<[f64; 2]>,
 }
 
 /// A group's worth of one value per pixel.
@@ -152,47 +154,48 @@ struct PaintSums {
     opacity: Lanes,
 }
 
-/// Sums of the band partials, kept between calls.
-#[derive(Default)]
-pub(super) struct Totals {
-    verts: Vec<[f64; 2]>,
-    paint: Vec<([f64; 3], f64)>,
-}
+/// Paths per rayon task of [`add_bands_into`]: a path's share is a few microseconds, so
+/// smaller tasks would cost more to hand out than they spread.
+pub(super) const PATHS_PER_TASK: usize = 4;
 
-impl Totals {
-    pub fn reduce(&mut self, flat: &FlatScene<f32>, bands: &[BandGrads], path_count: usize) {
-        self.verts.clear();
-        self.verts.resize(flat.verts.len(), [0.0; 2]);
-        self.paint.clear();
-        self.paint.resize(path_count, ([0.0; 3], 0.0));
+/// Adds the bands' partial gradients of paths `first..first + grads.len()` into `grads` and
+/// chains them to the control points. Each path's sums run over the bands in band order, as
+/// they would on one thread, so the result does not depend on how paths are shared out.
+pub(super) fn add_bands_into(
+    flat: &FlatScene<f32>,
+    bands: &[BandGrads],
+    first: usize,
+    grads: &mut [PathGrad],
+    ws: &mut Workspace,
+) {
+    for (i, grad) in (first..).zip(grads) {
+        let vert_count = flat.paths[i].verts.len();
+        let sums = &mut ws.vert_sums;
+        sums.clear();
+        sums.resize(vert_count, [0.0; 2]);
+        let (mut color, mut opacity) = ([0.0f64; 3], 0.0f64);
         for band in bands {
-            for partial in &band.paths {
-                let i = partial.path as usize;
-                for c in 0..3 {
-                    self.paint[i].0[c] += partial.color[c];
-                }
-                self.paint[i].1 += partial.opacity;
-                let range = flat.paths[i].verts.clone();
-                let start = partial.verts as usize;
-                let src = &band.verts[start..start + range.len()];
-                for (acc, g) in self.verts[range].iter_mut().zip(src) {
-                    acc[0] += g[0] as f64;
-                    acc[1] += g[1] as f64;
-                }
+            // A band lists its paths in paint order.
+            let Ok(k) = band.paths.binary_search_by_key(&(i as u32), |p| p.path) else {
+                continue;
+            };
+            let partial = &band.paths[k];
+            for c in 0..3 {
+                color[c] += partial.color[c];
+            }
+            opacity += partial.opacity;
+            let start = partial.verts as usize;
+            for (acc, g) in sums.iter_mut().zip(&band.verts[start..start + vert_count]) {
+                acc[0] += g[0] as f64;
+                acc[1] += g[1] as f64;
             }
         }
-    }
-
-    pub fn add_into(&self, flat: &FlatScene<f32>, grads: &mut [PathGrad]) {
-        for (i, grad) in grads.iter_mut().enumerate().take(self.paint.len()) {
-            for c in 0..3 {
-                grad.color[c] += self.paint[i].0[c] as f32;
-            }
-            grad.opacity += self.paint[i].1 as f32;
-            let range = flat.paths[i].verts.clone();
-            if !range.is_empty() {
-                flat.chain_to_control_points(i, &self.verts[range], &mut grad.points);
-            }
+        for c in 0..3 {
+            grad.color[c] += color[c] as f32;
+        }
+        grad.opacity += opacity as f32;
+        if vert_count > 0 {
+            flat.chain_to_control_points(i, sums, &mut grad.points);
         }
     }
 }

@@ -31,7 +31,8 @@
 //!
 //! The canvas is processed in strips of [`STRIP_ROWS`] rows with rayon (the caller's current
 //! pool); every strip produces its own partial gradients, reduced in strip order, so results do
-//! not depend on the thread count. Per-thread buffers live in the [`Rasterizer`] and are reused,
+//! not depend on the thread count. Flattening, and the reduction with the chain to the control
+//! points, go path by path on the pool, each path's arithmetic as on one thread. Per-thread buffers live in the [`Rasterizer`] and are reused,
 //! so after the first call neither pass allocates. The rasteriser keeps the last few geometries
 //! flattened, and with each the signed areas its forward computed, so the backward that follows
 //! a render of the same geometry reads them instead of scan-converting again. Work per path is
@@ -329,7 +330,6 @@ pub struct Rasterizer {
     flats: Vec<CachedFlat>,
     pool: Mutex<Vec<Scratch>>,
     bands: Vec<backward::BandGrads>,
-    totals: backward::Totals,
 }
 
 impl Rasterizer {
@@ -576,10 +576,17 @@ impl Rasterizer {
                 job.run(grads, &mut scratch.backward, &mut scratch.coverage);
                 give(pool, scratch);
             });
-        // Reduce in band order (deterministic), then chain to the control points.
-        self.totals
-            .reduce(flat, &self.bands[..band_count], paths.len());
-        self.totals.add_into(flat, grads);
+        // Then path by path: the bands' sums, chained to the control points.
+        let bands = &self.bands[..band_count];
+        grads[..paths.len()]
+            .par_chunks_mut(backward::PATHS_PER_TASK)
+            .enumerate()
+            .for_each(|(chunk, grads)| {
+                let mut scratch = take(pool);
+                let first = chunk * backward::PATHS_PER_TASK;
+                backward::add_bands_into(flat, bands, first, grads, &mut scratch.backward);
+                give(pool, scratch);
+            });
     }
 }
 

@@ -33,8 +33,9 @@ pub(crate) trait Real:
     fn abs(self) -> Self;
     fn min(self, other: Self) -> Self;
     fn max(self, other: Self) -> Self;
-    /// `B(k/n)` of the cubic `c`, evaluated in this precision.
-    fn bezier_point(c: &[Point; 4], k: u32, n: u32) -> [Self; 2];
+    /// `B(k/n)` of the cubic `c` for `k = 0..n` into `out`, `n = out.len()`, evaluated in
+    /// this precision; `B(0)` is the start point itself.
+    fn flatten_segment(c: &[Point; 4], out: &mut [[Self; 2]]);
 }
 
 impl Real for f32 {
@@ -80,13 +81,17 @@ impl Real for f32 {
         f32::max(self, other)
     }
     #[inline(always)]
-    fn bezier_point(c: &[Point; 4], k: u32, n: u32) -> [Self; 2] {
-        let p = if k == 0 {
-            c[0]
-        } else {
-            bezier::eval(c, bezier::parameter(k, n))
-        };
-        [p.x, p.y]
+    fn flatten_segment(c: &[Point; 4], out: &mut [[Self; 2]]) {
+        let mut buffer = Vec::new();
+        let weights = bezier::weights(out.len() as u32, &mut buffer);
+        for (k, (vert, &w)) in out.iter_mut().zip(weights).enumerate() {
+            let p = if k == 0 {
+                c[0]
+            } else {
+                bezier::eval_weighted(c, w)
+            };
+            *vert = [p.x, p.y];
+        }
     }
 }
 
@@ -132,15 +137,18 @@ impl Real for f64 {
     fn max(self, other: Self) -> Self {
         f64::max(self, other)
     }
-    fn bezier_point(c: &[Point; 4], k: u32, n: u32) -> [Self; 2] {
-        let t = k as f64 / n as f64;
-        let s = 1.0 - t;
-        let w = [s * s * s, 3.0 * s * s * t, 3.0 * s * t * t, t * t * t];
-        let mut p = [0.0; 2];
-        for j in 0..4 {
-            p[0] += w[j] * c[j].x as f64;
-            p[1] += w[j] * c[j].y as f64;
+    fn flatten_segment(c: &[Point; 4], out: &mut [[Self; 2]]) {
+        let n = out.len() as f64;
+        for (k, vert) in out.iter_mut().enumerate() {
+            let t = k as f64 / n;
+            let s = 1.0 - t;
+            let w = [s * s * s, 3.0 * s * s * t, 3.0 * s * t * t, t * t * t];
+            let mut p = [0.0; 2];
+            for j in 0..4 {
+                p[0] += w[j] * c[j].x as f64;
+                p[1] += w[j] * c[j].y as f64;
+            }
+            *vert = p;
         }
-        p
     }
 }
