@@ -78,7 +78,7 @@ pub fn parameter(k: u32, n: u32) -> f32 {
     k as f32 / n as f32
 }
 
-/// Line counts whose vertex weights [`weights`] reads from a table: a cubic is flattened into
+/// Line counts whose vertex weights [`weight_table`] holds: a cubic is flattened into
 /// at least 16 lines (the renderer's minimum) and, at the working sizes, rarely more than 64.
 /// The table is 2 080 entries, 33 KiB.
 const TABLED_LINES: u32 = 64;
@@ -90,17 +90,22 @@ static WEIGHT_TABLE: LazyLock<Vec<[f32; 4]>> = LazyLock::new(|| {
         .collect()
 });
 
-/// The Bernstein weights of the `n` flattened vertices `B(t_k)`, `k = 0..n`, exactly
-/// `bernstein(parameter(k, n))`: the renderer needs them for every vertex of every render and
-/// its backward, so the common counts come from a table; others are computed into `buffer`.
-pub fn weights(n: u32, buffer: &mut Vec<[f32; 4]>) -> &[[f32; 4]] {
-    if (1..=TABLED_LINES).contains(&n) {
+/// The table of the weights of the `n` flattened vertices `B(t_k)`, `k = 0..n`, if `n` is one
+/// of the common counts: the renderer needs them at every vertex of every render and its
+/// backward. Read it with [`weight`].
+pub fn weight_table(n: u32) -> Option<&'static [[f32; 4]]> {
+    (1..=TABLED_LINES).contains(&n).then(|| {
         let start = (n * (n - 1) / 2) as usize;
         &WEIGHT_TABLE[start..start + n as usize]
-    } else {
-        buffer.clear();
-        buffer.extend((0..n).map(|k| bernstein(parameter(k, n))));
-        buffer
+    })
+}
+
+/// Exactly `bernstein(parameter(k, n))`: from `table` ([`weight_table`] of `n`) when there is one.
+#[inline]
+pub fn weight(table: Option<&[[f32; 4]]>, k: u32, n: u32) -> [f32; 4] {
+    match table {
+        Some(table) => table[k as usize],
+        None => bernstein(parameter(k, n)),
     }
 }
 

@@ -233,14 +233,13 @@ impl FlatScene<f32> {
         let flat = &self.paths[path];
         let count = point_grads.len();
         let mut v = 0;
-        let mut buffer = Vec::new();
         for (s, &n) in self.lines_per_segment[flat.segments.clone()]
             .iter()
             .enumerate()
         {
             let idx = [3 * s, 3 * s + 1, 3 * s + 2, (3 * s + 3) % count];
-            let weights = bezier::weights(n, &mut buffer);
-            for (k, &w) in weights.iter().enumerate() {
+            let table = bezier::weight_table(n);
+            for k in 0..n {
                 let g = vertex_grads[v];
                 v += 1;
                 if k == 0 {
@@ -249,6 +248,7 @@ impl FlatScene<f32> {
                     point_grads[idx[0]].y += g[1] as f32;
                     continue;
                 }
+                let w = bezier::weight(table, k, n);
                 for (j, &i) in idx.iter().enumerate() {
                     point_grads[i].x += (w[j] as f64 * g[0]) as f32;
                     point_grads[i].y += (w[j] as f64 * g[1]) as f32;

@@ -82,13 +82,13 @@ impl Real for f32 {
     }
     #[inline(always)]
     fn flatten_segment(c: &[Point; 4], out: &mut [[Self; 2]]) {
-        let mut buffer = Vec::new();
-        let weights = bezier::weights(out.len() as u32, &mut buffer);
-        for (k, (vert, &w)) in out.iter_mut().zip(weights).enumerate() {
+        let n = out.len() as u32;
+        let table = bezier::weight_table(n);
+        for (k, vert) in (0..n).zip(out) {
             let p = if k == 0 {
                 c[0]
             } else {
-                bezier::eval_weighted(c, w)
+                bezier::eval_weighted(c, bezier::weight(table, k, n))
             };
             *vert = [p.x, p.y];
         }
