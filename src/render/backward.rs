@@ -154,8 +154,8 @@ struct PaintSums {
     opacity: Lanes,
 }
 
-/// Paths per rayon task of [`add_bands_into`]: a path's share is a few microseconds, so
-/// smaller tasks would cost more to hand out than they spread.
+/// Paths per rayon task of [`add_bands_into`]: one path's sums and chain are little work, so
+/// tasks of one path each would cost more to hand out than they spread.
 pub(super) const PATHS_PER_TASK: usize = 4;
 
 /// Adds the bands' partial gradients of paths `first..first + grads.len()` into `grads` and

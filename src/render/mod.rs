@@ -32,8 +32,9 @@
 //! The canvas is processed in strips of [`STRIP_ROWS`] rows with rayon (the caller's current
 //! pool); every strip produces its own partial gradients, reduced in strip order, so results do
 //! not depend on the thread count. Flattening, and the reduction with the chain to the control
-//! points, go path by path on the pool, each path's arithmetic as on one thread. Per-thread buffers live in the [`Rasterizer`] and are reused,
-//! so after the first call neither pass allocates. The rasteriser keeps the last few geometries
+//! points, go path by path on the pool, each path's arithmetic as on one thread. Per-thread
+//! buffers live in the [`Rasterizer`] and are reused, so after the first call neither pass
+//! allocates. The rasteriser keeps the last few geometries
 //! flattened, and with each the signed areas its forward computed, so the backward that follows
 //! a render of the same geometry reads them instead of scan-converting again. Work per path is
 //! proportional to the rows of its bounding box times the width of its edges' span in each row,
