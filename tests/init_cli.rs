@@ -375,6 +375,23 @@ fn eval_scores_skin_inside_the_masks_of_a_faces_file() {
         stderr(&out)
     );
 
+    // The mask alone, at the size it was drawn at: the ellipse's π·40² pixels, white.
+    let masks = dir.join("masks");
+    let out = covec(&[
+        "eval",
+        "--faces",
+        faces.to_str().unwrap(),
+        "--write-masks",
+        masks.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let mask = image::open(masks.join("apple.png")).unwrap().to_luma8();
+    assert_eq!(mask.dimensions(), (256, 256));
+    let white = mask.pixels().filter(|p| p.0[0] == 255).count();
+    let black = mask.pixels().filter(|p| p.0[0] == 0).count();
+    assert_eq!(white + black, 256 * 256);
+    assert!((white as f32 / 5026.5 - 1.0).abs() < 0.01, "{white} px");
+
     std::fs::write(&faces, "face apple 256 256\nskin circle 1 2 3\n").unwrap();
     assert_one_line_error(&args(&faces), "line 2");
 }

@@ -3,17 +3,20 @@
 # gzip bytes.
 #   COVEC_BENCH=DIR benches/quality/rd.sh COVEC OUT      (COVEC: a covec binary; DIR: the
 #   covec-bench set, which is not part of this repository)
-# Environment: PATHS (covec's path counts, default "8 16 32 64 128 256"); SETS ("256 512":
-# the 16 bench photos at 256², the 512² set of bench.sh: scikit-image's astronaut.png and
-# four bench photos upscaled 2× with Pillow's Lanczos); PY (a python with pillow + numpy;
-# default: a venv made in OUT).
+# Environment: PATHS (covec's path counts, default "8 16 32 64 128 256"); SETS (default "256
+# 512": the 16 bench photos at 256², the 512² set of bench.sh: scikit-image's astronaut.png
+# and four bench photos upscaled 2× with Pillow's Lanczos; "pasted" adds face_set.py's two
+# bench faces pasted small into 512² scenes); PY (a python with pillow, numpy and
+# scikit-image; default: a venv made in OUT).
 # Every SVG (covec at each path count; VTracer over a grid of filter_speckle × colour
 # precision × gradient step, in spline and in polygon mode) is measured by its `gzip -9n`
 # bytes and by the MSE and GMSD of its resvg render over white at the input's size against
 # the input (metrics.py). VTracer's best at covec's byte count, for each error separately,
 # is the lower convex hull of all its (bytes, error) points, both modes together, linearly
 # interpolated; below VTracer's smallest file the smallest file's error is used (marked <),
-# above the lowest-error point the lowest error (marked >). The staircase, VTracer's best
+# above the lowest-error point the lowest error (marked >). On the 11 faces that faces.txt
+# draws, the skin is scored too (metrics.py --skin: mean skin colour and mean per-pixel
+# CIEDE2000), and VTracer's best per-pixel skin error taken the same way. The staircase, VTracer's best
 # error among its files of at most covec's bytes, is in ratios.tsv too. Points are kept per
 # image in OUT/pts/, so a run that stops resumes (a new binary or grid needs a new OUT).
 # Writes OUT/points.tsv (every point), OUT/ratios.tsv and OUT/ratios.md (covec / VTracer).
@@ -22,9 +25,11 @@ set -eu
 covec=$1; out=$2; here=$(cd "$(dirname "$0")" && pwd); bench=${COVEC_BENCH:?set COVEC_BENCH to the covec-bench directory}
 paths=${PATHS:-8 16 32 64 128 256}; sets=${SETS:-256 512}
 mkdir -p "$out/set512" "$out/pts"; py=${PY:-$out/venv/bin/python}
-[ -x "$py" ] || { python3 -m venv "$out/venv" && "$out/venv/bin/pip" -q install pillow numpy; }
+[ -x "$py" ] || { python3 -m venv "$out/venv" && "$out/venv/bin/pip" -q install pillow numpy scikit-image; }
 "$py" "$here/metrics.py" --check "$here/../../tests/fixtures"
 if [[ " $sets " == *" 512 "* ]]; then "$here/set512.sh" "$bench" "$out/set512" "$py"; fi
+if [[ " $sets " == *" pasted "* ]]; then [ -f "$out/faceset/astronaut.png" ] || "$py" "$here/face_set.py" "$bench" "$out/faceset"; fi
+"$covec" eval --faces "$here/faces.txt" --write-masks "$out/masks" 2>/dev/null
 # VTracer's grid, "filter_speckle colour_precision gradient_step" a line, run in both modes:
 # from a few hundred gzip bytes (polygon, 8 bits, step 128) to about 100 kB at 256² (spline,
 # 8 bits, 1 px, step 4). Mostly 8 bits: below 8 VTracer truncates the fills, and on
@@ -55,8 +60,8 @@ grid=${GRID:-"16 8 128
 4 4 32
 16 3 64
 4 3 32"}
-one() {  # one SIZE IMG: every point of one image -> OUT/pts/SIZE_NAME.tsv
-  local size=$1 img=$2 n w h d svgs=() rows=() tag i
+one() {  # one SET IMG: every point of one image -> OUT/pts/SET_NAME.tsv
+  local size=$1 img=$2 n w h d svgs=() rows=() tag i skin=() pad=$'\t\t'
   n=$(basename "$img" .png); [ -s "$out/pts/${size}_$n.tsv" ] && return
   d=$out/svg/${size}_$n; mkdir -p "$d"
   read -r w h < <("$py" -c "from PIL import Image; print(*Image.open('$img').size)")
@@ -72,24 +77,32 @@ one() {  # one SIZE IMG: every point of one image -> OUT/pts/SIZE_NAME.tsv
     done <<< "$grid"
   done
   for s in "${svgs[@]}"; do resvg -w "$w" -h "$h" "$s" "${s%.svg}.png"; done
-  mapfile -t errs < <("$py" "$here/metrics.py" "$img" "${svgs[@]/%.svg/.png}")
+  [ -f "$out/masks/$n.png" ] && { skin=(--skin "$out/masks/$n.png"); pad=; }
+  mapfile -t errs < <("$py" "$here/metrics.py" "${skin[@]}" "$img" "${svgs[@]/%.svg/.png}")
   [ "${#errs[@]}" = "${#svgs[@]}" ] || { echo "metrics.py failed on $img" >&2; exit 1; }
   : > "$out/pts/${size}_$n.tmp"
   for i in "${!svgs[@]}"; do
-    printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$n" "$size" "${rows[$i]}" "$(grep -o '<path' "${svgs[$i]}" | wc -l)" \
-      "$(gzip -9n < "${svgs[$i]}" | wc -c)" "$(tr ' ' '\t' <<< "${errs[$i]}")" >> "$out/pts/${size}_$n.tmp"
+    printf '%s\t%s\t%s\t%s\t%s\t%s%s\n' "$n" "$size" "${rows[$i]}" "$(grep -o '<path' "${svgs[$i]}" | wc -l)" \
+      "$(gzip -9n < "${svgs[$i]}" | wc -c)" "$(tr ' ' '\t' <<< "${errs[$i]}")" "$pad" >> "$out/pts/${size}_$n.tmp"
   done
   mv "$out/pts/${size}_$n.tmp" "$out/pts/${size}_$n.tsv"; rm -f "$d"/*.png "$d"/*.json
   echo "$size $n done" >&2
 }
 for size in $sets; do
-  if [ "$size" = 256 ]; then imgs=("$bench"/faces/*.png "$bench"/scenes/*.png); else imgs=("$out"/set512/*.png); fi
+  case $size in
+    256) imgs=("$bench"/faces/*.png "$bench"/scenes/*.png) ;;
+    512) imgs=("$out"/set512/*.png) ;;
+    pasted) imgs=("$out"/faceset/paste_*.png) ;;
+    *) echo "unknown set $size (256, 512, pasted)" >&2; exit 2 ;;
+  esac
   for img in "${imgs[@]}"; do one "$size" "$img"; done
 done
-{ printf 'image\tsize\ttool\tmode\tsetting\tpaths\tgzip_bytes\tmse\tgmsd\n'; cat "$out"/pts/*.tsv; } > "$out/points.tsv"
-"$py" - "$out" <<'PY'
+{ printf 'image\tsize\ttool\tmode\tsetting\tpaths\tgzip_bytes\tmse\tgmsd\tskin_colour\tskin_pixel\n'
+  for size in $sets; do cat "$out"/pts/"${size}"_*.tsv; done; } > "$out/points.tsv"
+"$py" - "$out" "$sets" <<'PY'
 import csv, math, sys
-out = sys.argv[1]
+out, sets = sys.argv[1], sys.argv[2].split()
+label = lambda size: f"{size}²" if size.isdigit() else size
 rows = list(csv.DictReader(open(f"{out}/points.tsv"), delimiter="\t"))
 def hull(pts):  # lower convex hull of (bytes, err), bytes ascending, then its decreasing part
     pts = sorted(set(pts)); h = []
@@ -107,25 +120,28 @@ def interp(h, b):  # (error, flag): flag "<" below the smallest file, ">" above 
 def stair(pts, b):  # best error at bytes <= b (None below the smallest file)
     e = [err for (x, err) in pts if x <= b]
     return min(e) if e else None
-keys = sorted({(r["size"], r["image"]) for r in rows}, key=lambda k: (int(k[0]), k[1]))
+keys = sorted({(r["size"], r["image"]) for r in rows}, key=lambda k: (sets.index(k[0]), k[1]))
 res = []
 for size, img in keys:
     rs = [r for r in rows if r["image"] == img and r["size"] == size]
     vt = [r for r in rs if r["tool"] == "vtracer"]
     for c in sorted((r for r in rs if r["tool"] == "covec"), key=lambda r: int(r["setting"].split("=")[1])):
         b = int(c["gzip_bytes"]); o = {"image": img, "size": size, "paths": c["setting"].split("=")[1], "covec_bytes": b}
-        for m in ("mse", "gmsd"):
+        for m in ("mse", "gmsd", "skin_pixel"):
+            if not c[m]: continue
             pts = [(int(r["gzip_bytes"]), float(r[m])) for r in vt]
             e, flag = interp(hull(pts), b); s = stair(pts, b)
             o[f"covec_{m}"] = float(c[m]); o[f"vt_{m}"] = e; o[f"flag_{m}"] = flag
             o[f"ratio_{m}"] = float(c[m]) / e if e > 0 else math.inf
             o[f"stair_ratio_{m}"] = float(c[m]) / s if s else math.nan
+        if c["skin_colour"]: o["covec_skin_colour"] = float(c["skin_colour"])
         res.append(o)
 cols = ["image", "size", "paths", "covec_bytes", "covec_mse", "vt_mse", "ratio_mse", "stair_ratio_mse",
-        "covec_gmsd", "vt_gmsd", "ratio_gmsd", "stair_ratio_gmsd", "flag_mse", "flag_gmsd"]
+        "covec_gmsd", "vt_gmsd", "ratio_gmsd", "stair_ratio_gmsd", "flag_mse", "flag_gmsd",
+        "covec_skin_colour", "covec_skin_pixel", "vt_skin_pixel", "ratio_skin_pixel", "flag_skin_pixel"]
 with open(f"{out}/ratios.tsv", "w") as f:
     f.write("\t".join(cols) + "\n")
-    for o in res: f.write("\t".join(f"{o[c]:.4g}" if isinstance(o[c], float) else str(o[c]) for c in cols) + "\n")
+    for o in res: f.write("\t".join(f"{o[c]:.4g}" if isinstance(o.get(c), float) else str(o.get(c, "")) for c in cols) + "\n")
 ps = sorted({int(o["paths"]) for o in res})
 md = ["covec / VTracer's best (lower convex hull of its spline and polygon points) at covec's gzip bytes: "
       "MSE ratio / GMSD ratio; **bold**: above 1 (covec worse); < covec's file is smaller than any "
@@ -134,16 +150,28 @@ md = ["covec / VTracer's best (lower convex hull of its spline and polygon point
 cell = lambda x: f"**{x:.2f}**" if x > 1 else f"{x:.2f}"
 for size, img in keys:
     by = {int(o["paths"]): o for o in res if o["image"] == img and o["size"] == size}
-    md.append(f"| {img} | {size}² | " + " | ".join(
+    md.append(f"| {img} | {label(size)} | " + " | ".join(
         f"{cell(by[p]['ratio_mse'])}{by[p]['flag_mse']} / {cell(by[p]['ratio_gmsd'])}{by[p]['flag_gmsd']}" if p in by else "" for p in ps) + " |")
-for size in sorted({k[0] for k in keys}, key=int):
+for size in sorted({k[0] for k in keys}, key=sets.index):
     g = lambda m, p: math.exp(sum(math.log(o[f"ratio_{m}"]) for o in res if o["size"] == size and int(o["paths"]) == p)
                               / max(1, sum(1 for o in res if o["size"] == size and int(o["paths"]) == p)))
-    md.append(f"| geometric mean | {size}² | " + " | ".join(f"{g('mse', p):.2f} / {g('gmsd', p):.2f}" for p in ps) + " |")
+    md.append(f"| geometric mean | {label(size)} | " + " | ".join(f"{g('mse', p):.2f} / {g('gmsd', p):.2f}" for p in ps) + " |")
 above = [o for o in res if o["ratio_mse"] > 1 or o["ratio_gmsd"] > 1]
 md += ["", f"{len(above)} of {len(res)} (image, path count) points have a ratio above 1:"]
-md += [f"- {o['image']} {o['size']}² {o['paths']} paths: " + ", ".join(
+md += [f"- {o['image']} {label(o['size'])} {o['paths']} paths: " + ", ".join(
         f"{m.upper()} {o['ratio_' + m]:.2f}" for m in ("mse", "gmsd") if o["ratio_" + m] > 1) for o in above]
+skin = [k for k in keys if any("ratio_skin_pixel" in o for o in res if (o["size"], o["image"]) == k)]
+if skin:
+    md += ["", "Skin inside faces.txt's masks, in CIEDE2000: covec's mean skin colour against the photo's, "
+           "then covec's mean per-pixel error over VTracer's best at covec's gzip bytes; **bold**: a colour "
+           "above 2.3 or a ratio above 1.", "",
+           "| image | size | " + " | ".join(f"{p}" for p in ps) + " |", "|---|---|" + "---|" * len(ps)]
+    for size, img in skin:
+        by = {int(o["paths"]): o for o in res if o["image"] == img and o["size"] == size}
+        colour = lambda x: f"**{x:.2f}**" if x > 2.3 else f"{x:.2f}"
+        md.append(f"| {img} | {label(size)} | " + " | ".join(
+            f"{colour(by[p]['covec_skin_colour'])} / {cell(by[p]['ratio_skin_pixel'])}{by[p]['flag_skin_pixel']}"
+            if p in by else "" for p in ps) + " |")
 open(f"{out}/ratios.md", "w").write("\n".join(md) + "\n")
 print("\n".join(md))
 PY

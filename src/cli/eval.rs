@@ -15,8 +15,9 @@ use covec::eval::edits::{self, EditCase, Leakage};
 use covec::eval::faces::{self, SkinScores};
 use covec::eval::vec::ObjectScores;
 use covec::eval::{self, Quality};
-use covec::imageio::{self, InputError, Limits, resize_rgb, working_size};
+use covec::imageio::{self, InputError, Limits, encode_png, resize_rgb, working_size};
 use covec::pipeline::{self, Inputs, Masks, Mode, Params, Quiet, ResolvedMode};
+use covec::render::Image;
 use covec::render::composite::composite;
 use covec::scene::Scene;
 use covec::svg::{self, SvgOptions};
@@ -25,7 +26,10 @@ use covec::svg::{self, SvgOptions};
 #[derive(ClapArgs, Debug)]
 pub struct Args {
     /// Image files, or directories searched recursively for PNG, JPEG and WebP files.
-    #[arg(required_unless_present = "write_scenes", value_name = "DIR|IMAGE")]
+    #[arg(
+        required_unless_present_any = ["write_scenes", "write_masks"],
+        value_name = "DIR|IMAGE"
+    )]
     pub inputs: Vec<PathBuf>,
     /// Path budgets to run, comma-separated.
     #[arg(
@@ -78,6 +82,11 @@ pub struct Args {
     /// mean per-pixel CIEDE2000 inside the skin, and a table of them.
     #[arg(long, value_name = "FILE")]
     pub faces: Option<PathBuf>,
+    /// Write the `--faces` file's skin masks into this directory as PNGs (white: skin), each
+    /// named by its image and at the size it was drawn at, and exit (inputs are ignored): for
+    /// scoring renders made elsewhere, as benches/quality/rd.sh does VTracer's.
+    #[arg(long, value_name = "DIR", requires = "faces")]
+    pub write_masks: Option<PathBuf>,
     /// A file of hand-drawn object masks, each with a colour (as benches/quality/edits.txt):
     /// for each image it names, recolours the object to that colour's hue by reference (as
     /// `covec edit --reference` does, default thresholds) and adds the mean CIEDE2000 outside the
@@ -260,6 +269,28 @@ pub fn run(args: &Args) -> Result<(), Error> {
     if rows.iter().any(|r| r.edit.is_some()) {
         eprint!("{}", edit_table(&rows));
     }
+    Ok(())
+}
+
+/// Writes the skin masks of `faces` (a `--faces` file) into `dir/<image>.png`.
+pub fn write_masks(faces: &Path, dir: &Path) -> Result<(), Error> {
+    let drawings = read_drawn(faces, faces::parse)?;
+    io::create_dir(dir)?;
+    for face in &drawings {
+        let (width, height) = face.drawn_size();
+        let data = face
+            .rasterize(width, height)
+            .into_iter()
+            .flat_map(|skin| [f32::from(u8::from(skin)); 3])
+            .collect();
+        let mask = Image {
+            width,
+            height,
+            data,
+        };
+        io::write(&dir.join(format!("{}.png", face.image)), &encode_png(&mask))?;
+    }
+    eprintln!("wrote {} skin masks to {}", drawings.len(), dir.display());
     Ok(())
 }
 

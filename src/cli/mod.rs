@@ -23,10 +23,12 @@ pub fn vectorize(args: &vectorize::Args) -> Result<(), String> {
 }
 
 /// `covec eval`: quality on images, or with `--intrinsic` / `--write-scenes` the
-/// decomposition on scenes with known layers.
+/// decomposition on scenes with known layers, or with `--write-masks` the skin masks alone.
 pub fn eval(args: &eval::Args) -> Result<(), String> {
     let result = if let Some(dir) = &args.write_scenes {
         intrinsic::write_scenes(dir, args.scene_size)
+    } else if let (Some(dir), Some(faces)) = (&args.write_masks, &args.faces) {
+        eval::write_masks(faces, dir)
     } else if args.intrinsic {
         in_pool(|| intrinsic::run(args))
     } else {

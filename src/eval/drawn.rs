@@ -76,6 +76,11 @@ pub struct Drawing {
 }
 
 impl Drawing {
+    /// The size it was drawn at (its `face` or `edit` line's), in whole pixels.
+    pub fn drawn_size(&self) -> (usize, usize) {
+        (self.width.round() as usize, self.height.round() as usize)
+    }
+
     /// The mask at `width × height` (the image scaled), sampled at pixel centres, row-major.
     pub fn rasterize(&self, width: usize, height: usize) -> Vec<bool> {
         let (sx, sy) = (self.width / width as f32, self.height / height as f32);
