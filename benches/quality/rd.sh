@@ -138,7 +138,8 @@ for size, img in keys:
         res.append(o)
 cols = ["image", "size", "paths", "covec_bytes", "covec_mse", "vt_mse", "ratio_mse", "stair_ratio_mse",
         "covec_gmsd", "vt_gmsd", "ratio_gmsd", "stair_ratio_gmsd", "flag_mse", "flag_gmsd",
-        "covec_skin_colour", "covec_skin_pixel", "vt_skin_pixel", "ratio_skin_pixel", "flag_skin_pixel"]
+        "covec_skin_colour", "covec_skin_pixel", "vt_skin_pixel", "ratio_skin_pixel", "stair_ratio_skin_pixel",
+        "flag_skin_pixel"]
 with open(f"{out}/ratios.tsv", "w") as f:
     f.write("\t".join(cols) + "\n")
     for o in res: f.write("\t".join(f"{o[c]:.4g}" if isinstance(o.get(c), float) else str(o.get(c, "")) for c in cols) + "\n")
