@@ -392,6 +392,17 @@ fn eval_scores_skin_inside_the_masks_of_a_faces_file() {
     assert_eq!(white + black, 256 * 256);
     assert!((white as f32 / 5026.5 - 1.0).abs() < 0.01, "{white} px");
 
+    // A drawing too large to write as an image is refused, not allocated.
+    std::fs::write(&faces, "face apple 100000 100000\nskin ellipse 1 1 1 1\n").unwrap();
+    let out = covec(&[
+        "eval",
+        "--faces",
+        faces.to_str().unwrap(),
+        "--write-masks",
+        masks.to_str().unwrap(),
+    ]);
+    assert_one_line_error(&out, "100000 × 100000");
+
     std::fs::write(&faces, "face apple 256 256\nskin circle 1 2 3\n").unwrap();
     assert_one_line_error(&args(&faces), "line 2");
 }

@@ -141,6 +141,14 @@ pub enum Error {
     Drawn { path: PathBuf, source: ParseError },
     #[error("{path}: {source}")]
     Edit { path: PathBuf, source: EditError },
+    #[error("{path}: `{image}` is drawn at {width} × {height}, outside 1 to {max} pixels")]
+    MaskSize {
+        path: PathBuf,
+        image: String,
+        width: usize,
+        height: usize,
+        max: u64,
+    },
 }
 
 /// One run's measurements.
@@ -278,6 +286,16 @@ pub fn write_masks(faces: &Path, dir: &Path) -> Result<(), Error> {
     io::create_dir(dir)?;
     for face in &drawings {
         let (width, height) = face.drawn_size();
+        let max = Limits::default().max_pixels;
+        if !(1..=max).contains(&(width as u64 * height as u64)) {
+            return Err(Error::MaskSize {
+                path: faces.to_path_buf(),
+                image: face.image.clone(),
+                width,
+                height,
+                max,
+            });
+        }
         let data = face
             .rasterize(width, height)
             .into_iter()
