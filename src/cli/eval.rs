@@ -54,6 +54,8 @@ pub struct Args {
     /// Working size (long side), as for `covec vectorize`.
     #[arg(long, default_value_t = Params::default().max_size, value_name = "PX")]
     pub max_size: u32,
+    /// Seed of every run, as `covec vectorize --seed`. A figure that moves with it (the skin
+    /// colour of a small face, an edit's leakage) wants a few seeds before it is compared.
     #[arg(long, default_value_t = Params::default().seed)]
     pub seed: u64,
     /// Multiplies every stage's iteration count (e.g. 0.5 for a quicker, rougher eval).
