@@ -351,6 +351,8 @@ fn eval_scores_skin_inside_the_masks_of_a_faces_file() {
             "32",
             "--iteration-scale",
             "0.05",
+            "--seed",
+            "3,4",
             "--faces",
             faces.to_str().unwrap(),
             "--out",
@@ -361,19 +363,29 @@ fn eval_scores_skin_inside_the_masks_of_a_faces_file() {
     assert!(out.status.success(), "{}", stderr(&out));
     let text = std::fs::read_to_string(&csv).unwrap();
     let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
-    let row: Vec<&str> = text.lines().nth(1).unwrap().split(',').collect();
-    for name in ["skin_mean_de", "skin_pixel_de"] {
+    let column = |row: &str, name: &str| {
         let at = header.iter().position(|h| *h == name).unwrap();
-        let value: f32 = row[at]
-            .parse()
-            .unwrap_or_else(|_| panic!("{name} in {text}"));
-        assert!((0.0..50.0).contains(&value), "{name} {value}");
+        row.split(',').nth(at).unwrap().to_string()
+    };
+    // A row per seed, each scored.
+    let rows: Vec<&str> = text.lines().skip(1).collect();
+    assert_eq!(rows.len(), 2, "{text}");
+    for (row, seed) in rows.iter().zip(["3", "4"]) {
+        assert_eq!(column(row, "seed"), seed, "{text}");
+        for name in ["skin_mean_de", "skin_pixel_de"] {
+            let value: f32 = column(row, name)
+                .parse()
+                .unwrap_or_else(|_| panic!("{name} in {text}"));
+            assert!((0.0..50.0).contains(&value), "{name} {value}");
+        }
     }
-    assert!(
-        stderr(&out).contains("| apple | covec | 8 |"),
-        "{}",
-        stderr(&out)
-    );
+    for line in [
+        "| apple | covec | 8 | 3 |",
+        "| apple | covec | 8 | 4 |",
+        "| mean of 2 (worst ",
+    ] {
+        assert!(stderr(&out).contains(line), "{line} in {}", stderr(&out));
+    }
 
     // The mask alone, at the size it was drawn at: the ellipse's π·40² pixels, white.
     let masks = dir.join("masks");

@@ -54,10 +54,17 @@ pub struct Args {
     /// Working size (long side), as for `covec vectorize`.
     #[arg(long, default_value_t = Params::default().max_size, value_name = "PX")]
     pub max_size: u32,
-    /// Seed of every run, as `covec vectorize --seed`. A figure that moves with it (the skin
-    /// colour of a small face, an edit's leakage) wants a few seeds before it is compared.
-    #[arg(long, default_value_t = Params::default().seed)]
-    pub seed: u64,
+    /// Seeds to run, comma-separated, each as `covec vectorize --seed`: a figure that moves with
+    /// the seed (the skin colour of a small face, an edit's leakage, a Cornell scene's albedo)
+    /// wants a few before it is compared. The CSV has a row per seed; the tables' means and
+    /// worst cases take every seed's runs.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_values_t = [Params::default().seed],
+        value_name = "SEED,..."
+    )]
+    pub seed: Vec<u64>,
     /// Multiplies every stage's iteration count (e.g. 0.5 for a quicker, rougher eval).
     #[arg(long, default_value_t = 1.0, value_name = "F")]
     pub iteration_scale: f32,
@@ -160,6 +167,7 @@ struct Row {
     method: &'static str,
     mode: &'static str,
     budget: u32,
+    seed: u64,
     paths: [usize; 3],
     segments: usize,
     svg_bytes: usize,
@@ -175,17 +183,18 @@ struct Row {
     mode_reason: String,
 }
 
-const CSV_HEADER: &str = "image,class,method,mode,budget,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb,vec,median_iou,skin_mean_de,skin_pixel_de,edit_paths,edit_outside_de,edit_inside_de,mode_reason";
+const CSV_HEADER: &str = "image,class,method,mode,budget,seed,albedo_paths,shade_paths,light_paths,segments,svg_bytes,mse,psnr,ssim,gmsd,ms_ssim,seconds,peak_mb,vec,median_iou,skin_mean_de,skin_pixel_de,edit_paths,edit_outside_de,edit_inside_de,mode_reason";
 
 impl Row {
     fn csv(&self) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{},{},{},{},{},{},{},{},\"{}\"",
+            "{},{},{},{},{},{},{},{},{},{},{},{:.6},{:.3},{:.4},{:.4},{},{:.3},{},{},{},{},{},{},{},{},\"{}\"",
             self.image,
             self.class,
             self.method,
             self.mode,
             self.budget,
+            self.seed,
             self.paths[0],
             self.paths[1],
             self.paths[2],
@@ -235,36 +244,43 @@ pub fn run(args: &Args) -> Result<(), Error> {
     let mut csv = String::from(CSV_HEADER);
     csv.push('\n');
     let mut rows = Vec::new();
-    let total = images.len() * args.paths.len() * args.method.len();
+    let total = images.len() * args.paths.len() * args.method.len() * args.seed.len();
     for image_path in &images {
         let bytes = io::read(image_path)?;
+        let drawn = Drawn {
+            face: face_masks.iter().find(|f| f.image == stem(image_path)),
+            edit: edit_cases
+                .iter()
+                .find(|e| e.object.image == stem(image_path)),
+        };
         for &budget in &args.paths {
             for &method in &args.method {
-                let drawn = Drawn {
-                    face: face_masks.iter().find(|f| f.image == stem(image_path)),
-                    edit: edit_cases
-                        .iter()
-                        .find(|e| e.object.image == stem(image_path)),
-                };
-                let row = run_one(image_path, &bytes, method, budget, drawn, args)?;
-                eprintln!(
-                    "[{}/{total}] {} {} {} paths: MSE {:.5}, PSNR {:.2}, SSIM {:.4}, GMSD {:.4}, {:.1} s, {} MB",
-                    rows.len() + 1,
-                    row.image,
-                    row.method,
-                    budget,
-                    row.quality.mse,
-                    row.quality.psnr,
-                    row.quality.ssim,
-                    row.quality.gmsd,
-                    row.seconds,
-                    row.peak_mb
-                        .map(|m| format!("{m:.0}"))
-                        .unwrap_or_else(|| "?".into()),
-                );
-                csv.push_str(&row.csv());
-                csv.push('\n');
-                rows.push(row);
+                for &seed in &args.seed {
+                    let run = RunKey {
+                        method,
+                        budget,
+                        seed,
+                    };
+                    let row = run_one(image_path, &bytes, run, drawn, args)?;
+                    eprintln!(
+                        "[{}/{total}] {} {} {} paths, seed {seed}: MSE {:.5}, PSNR {:.2}, SSIM {:.4}, GMSD {:.4}, {:.1} s, {} MB",
+                        rows.len() + 1,
+                        row.image,
+                        row.method,
+                        budget,
+                        row.quality.mse,
+                        row.quality.psnr,
+                        row.quality.ssim,
+                        row.quality.gmsd,
+                        row.seconds,
+                        row.peak_mb
+                            .map(|m| format!("{m:.0}"))
+                            .unwrap_or_else(|| "?".into()),
+                    );
+                    csv.push_str(&row.csv());
+                    csv.push('\n');
+                    rows.push(row);
+                }
             }
         }
     }
@@ -332,14 +348,26 @@ struct Drawn<'a> {
     edit: Option<&'a EditCase>,
 }
 
+/// One run of an image: its method, path budget and seed.
+#[derive(Clone, Copy)]
+struct RunKey {
+    method: Method,
+    budget: u32,
+    seed: u64,
+}
+
 fn run_one(
     path: &Path,
     bytes: &[u8],
-    method: Method,
-    budget: u32,
+    run: RunKey,
     drawn: Drawn,
     args: &Args,
 ) -> Result<Row, Error> {
+    let RunKey {
+        method,
+        budget,
+        seed,
+    } = run;
     let input_error = |source| Error::Input {
         path: path.to_path_buf(),
         source,
@@ -348,7 +376,7 @@ fn run_one(
         path: path.to_path_buf(),
         source,
     };
-    let mut params = params_for(args, budget);
+    let mut params = params_for(args, budget, seed);
     eval::reset_peak_memory();
     let started = Instant::now();
     let image = imageio::decode_image(bytes, &Limits::default()).map_err(input_error)?;
@@ -422,6 +450,7 @@ fn run_one(
         method: method.name(),
         mode: mode.name(),
         budget,
+        seed,
         paths: [
             scene.albedo.paths.len(),
             scene.shade.paths.len(),
@@ -455,12 +484,12 @@ fn optional(value: Option<f32>) -> String {
     value.map(|v| format!("{v:.4}")).unwrap_or_default()
 }
 
-/// The run parameters for `budget` paths: the command's size, seed and iteration scale.
-pub fn params_for(args: &Args, budget: u32) -> Params {
+/// The run parameters for `budget` paths and `seed`: the command's size and iteration scale.
+pub fn params_for(args: &Args, budget: u32, seed: u64) -> Params {
     let mut params = Params {
         paths: budget,
         max_size: args.max_size,
-        seed: args.seed,
+        seed,
         ..Params::default()
     };
     let scale = |n: u32| ((n as f32 * args.iteration_scale).round() as u32).max(u32::from(n > 0));
@@ -513,18 +542,19 @@ fn collect_images(path: &Path, out: &mut Vec<PathBuf>) -> Result<(), Error> {
     Ok(())
 }
 
-/// Markdown table of the skin colour per face, method and budget, and its means.
+/// Markdown table of the skin colour per face, method, budget and seed, and its means over the
+/// faces and seeds of each method and budget.
 fn skin_table(rows: &[Row]) -> String {
     let mut out = String::from(
-        "\n| face | method | paths | mean skin colour ΔE00 | mean ΔE00 per pixel |\n|---|---|---|---|---|\n",
+        "\n| face | method | paths | seed | mean skin colour ΔE00 | mean ΔE00 per pixel |\n|---|---|---|---|---|---|\n",
     );
     let scored: Vec<(&Row, SkinScores)> =
         rows.iter().filter_map(|r| r.skin.map(|s| (r, s))).collect();
     for (r, s) in &scored {
         let _ = writeln!(
             out,
-            "| {} | {} | {} | {:.2} | {:.2} |",
-            r.image, r.method, r.budget, s.mean_colour, s.per_pixel
+            "| {} | {} | {} | {} | {:.2} | {:.2} |",
+            r.image, r.method, r.budget, r.seed, s.mean_colour, s.per_pixel
         );
     }
     let mut keys: Vec<(&str, u32)> = scored.iter().map(|(r, _)| (r.method, r.budget)).collect();
@@ -540,8 +570,9 @@ fn skin_table(rows: &[Row]) -> String {
         let worst = group.iter().map(|s| s.mean_colour).fold(0.0, f32::max);
         let _ = writeln!(
             out,
-            "| mean of {} (worst {worst:.2}) | {method} | {budget} | {:.2} | {:.2} |",
+            "| mean of {} (worst {worst:.2}) | {method} | {budget} | {} | {:.2} | {:.2} |",
             group.len(),
+            seeds(rows),
             group.iter().map(|s| s.mean_colour).sum::<f32>() / n,
             group.iter().map(|s| s.per_pixel).sum::<f32>() / n,
         );
@@ -549,24 +580,39 @@ fn skin_table(rows: &[Row]) -> String {
     out
 }
 
-/// Markdown table of the edit leakage per image, method and budget.
+/// Markdown table of the edit leakage per image, method, budget and seed.
 fn edit_table(rows: &[Row]) -> String {
     let mut out = String::from(
-        "\n| image | method | paths | paths recoloured | outside ΔE00 (edited vs unedited) | inside ΔE00 (edited vs reference) |\n|---|---|---|---|---|---|\n",
+        "\n| image | method | paths | seed | paths recoloured | outside ΔE00 (edited vs unedited) | inside ΔE00 (edited vs reference) |\n|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         if let Some(e) = r.edit {
             let _ = writeln!(
                 out,
-                "| {} | {} | {} | {} | {:.2} | {:.2} |",
-                r.image, r.method, r.budget, e.changed, e.outside, e.inside
+                "| {} | {} | {} | {} | {} | {:.2} | {:.2} |",
+                r.image, r.method, r.budget, r.seed, e.changed, e.outside, e.inside
             );
         }
     }
     out
 }
 
-/// Markdown table of means per class, method and budget, plus an "all" row per method and budget.
+/// The seeds of `rows`, in their first order, for a table row that pools them.
+fn seeds(rows: &[Row]) -> String {
+    let mut seen: Vec<u64> = Vec::new();
+    for r in rows {
+        if !seen.contains(&r.seed) {
+            seen.push(r.seed);
+        }
+    }
+    seen.iter()
+        .map(u64::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Markdown table of means per class, method and budget over every seed's runs (`n` of them),
+/// plus an "all" row per method and budget.
 fn summary(rows: &[Row]) -> String {
     let mut keys: Vec<(String, &'static str, u32)> = Vec::new();
     for r in rows {
@@ -585,8 +631,9 @@ fn summary(rows: &[Row]) -> String {
             .then(a.1.cmp(b.1))
     });
     let mut out = String::from(
-        "\n| class | method | paths | n | MSE | PSNR | SSIM | GMSD | MS-SSIM | segments | SVG KB | seconds (median) | peak MB (max) | VeC | IoU (median) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "\n| class | method | paths | seeds | n | MSE | PSNR | SSIM | GMSD | MS-SSIM | segments | SVG KB | seconds (median) | peak MB (max) | VeC | IoU (median) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
+    let seeds = seeds(rows);
     for (class, method, budget) in keys {
         let group: Vec<&Row> = rows
             .iter()
@@ -602,7 +649,7 @@ fn summary(rows: &[Row]) -> String {
         let peak = group.iter().filter_map(|r| r.peak_mb).fold(0.0, f64::max);
         let _ = writeln!(
             out,
-            "| {class} | {method} | {budget} | {} | {:.5} | {:.2} | {:.4} | {:.4} | {} | {:.0} | {:.1} | {:.1} | {:.0} | {} | {} |",
+            "| {class} | {method} | {budget} | {seeds} | {} | {:.5} | {:.2} | {:.4} | {:.4} | {} | {:.0} | {:.1} | {:.1} | {:.0} | {} | {} |",
             group.len(),
             mean(&|r| f64::from(r.quality.mse)),
             mean(&|r| f64::from(r.quality.psnr)),

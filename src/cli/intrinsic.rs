@@ -1,5 +1,5 @@
 //! `covec eval --intrinsic` and `--write-scenes`: the decomposition scored against known layers
-//! (`covec::eval::intrinsic`). One CSV row per scene, method and budget; a markdown summary per scene on
+//! (`covec::eval::intrinsic`). One CSV row per scene, method, budget and seed; a markdown summary per scene on
 //! standard error.
 
 use std::fmt::Write as _;
@@ -63,6 +63,7 @@ struct Row {
     scene: String,
     run: Run,
     budget: u32,
+    seed: u64,
     /// The image's own error against the true albedo.
     image_error: f32,
     scores: LayerScores,
@@ -72,7 +73,7 @@ struct Row {
     seconds: f64,
 }
 
-const CSV_HEADER: &str = "scene,method,budget,image_albedo_simse,albedo_simse,albedo_ratio,shade_simse,light_simse,highlight_coverage,shadow_in_albedo,edit_mse,mse,seconds,vec,median_iou";
+const CSV_HEADER: &str = "scene,method,budget,seed,image_albedo_simse,albedo_simse,albedo_ratio,shade_simse,light_simse,highlight_coverage,shadow_in_albedo,edit_mse,mse,seconds,vec,median_iou";
 
 fn optional(v: Option<f32>) -> String {
     v.map(|v| format!("{v:.4}")).unwrap_or_default()
@@ -82,10 +83,11 @@ impl Row {
     fn csv(&self) -> String {
         let s = &self.scores;
         format!(
-            "{},{},{},{:.6},{:.6},{:.3},{:.6},{:.6},{},{},{},{:.6},{:.2},{},{}",
+            "{},{},{},{},{:.6},{:.6},{:.3},{:.6},{:.6},{},{},{},{:.6},{:.2},{},{}",
             self.scene,
             self.run.name(),
             self.budget,
+            self.seed,
             self.image_error,
             s.albedo,
             s.albedo / self.image_error,
@@ -144,14 +146,18 @@ pub fn run(args: &Args) -> Result<(), Error> {
             intrinsic::map_error(&retinex, &truth),
             intrinsic::map_error(&AlbedoEstimate::Intrinsic.map(&truth.image), &truth),
         );
-        for &budget in &args.paths {
-            let labels = truth.label_map();
-            let object_masks = truth.object_masks();
+        let labels = truth.label_map();
+        let object_masks = truth.object_masks();
+        for (&budget, &seed) in args
+            .paths
+            .iter()
+            .flat_map(|b| args.seed.iter().map(move |s| (b, s)))
+        {
             for run in RUNS {
                 if run == Run::PhotoLabels && labels.is_none() {
                     continue;
                 }
-                let mut params = params_for(args, budget);
+                let mut params = params_for(args, budget, seed);
                 params.max_size = params
                     .max_size
                     .max(truth.image.width.max(truth.image.height) as u32);
@@ -184,6 +190,7 @@ pub fn run(args: &Args) -> Result<(), Error> {
                     scene: name.clone(),
                     run,
                     budget,
+                    seed,
                     image_error,
                     scores,
                     objects,
@@ -208,17 +215,23 @@ pub fn run(args: &Args) -> Result<(), Error> {
     Ok(())
 }
 
-/// Per scene and budget: the albedo ratio, highlight coverage, shadow share and edit error of
+/// Per scene, budget and seed: the albedo ratio, highlight coverage, shadow share and edit error of
 /// each run side by side.
 fn summary(rows: &[Row]) -> String {
     let mut out = String::from(
-        "\n| scene | paths | albedo siMSE ×image (photo / Retinex / simple) | highlights covered | shadow in albedo (photo / Retinex) | edit MSE K=4 (photo / Retinex / simple) |\n|---|---|---|---|---|---|\n",
+        "\n| scene | paths | seed | albedo siMSE ×image (photo / Retinex / simple) | highlights covered | shadow in albedo (photo / Retinex) | edit MSE K=4 (photo / Retinex / simple) |\n|---|---|---|---|---|---|---|\n",
     );
+    // The same scene, budget and seed as `photo`, in another run.
+    let partner = |photo: &Row, run: Run| {
+        rows.iter().find(|r| {
+            r.run == run
+                && r.scene == photo.scene
+                && r.budget == photo.budget
+                && r.seed == photo.seed
+        })
+    };
     for photo in rows.iter().filter(|r| r.run == Run::Photo) {
-        let find = |run: Run| {
-            rows.iter()
-                .find(|r| r.run == run && r.scene == photo.scene && r.budget == photo.budget)
-        };
+        let find = |run: Run| partner(photo, run);
         let (Some(retinex), Some(simple)) = (find(Run::PhotoRetinex), find(Run::Simple)) else {
             continue;
         };
@@ -227,9 +240,10 @@ fn summary(rows: &[Row]) -> String {
         let edit = |r: &Row| r.scores.edit.map(|v| format!("{v:.5}")).unwrap_or_default();
         let _ = writeln!(
             out,
-            "| {} | {} | {:.2} / {:.2} / {:.2} | {} | {} / {} | {} / {} / {} |",
+            "| {} | {} | {} | {:.2} / {:.2} / {:.2} | {} | {} / {} | {} / {} / {} |",
             photo.scene,
             photo.budget,
+            photo.seed,
             ratio(photo),
             ratio(retinex),
             ratio(simple),
@@ -242,12 +256,10 @@ fn summary(rows: &[Row]) -> String {
         );
     }
     out.push_str(
-        "\n| scene | paths | VeC (bare / labels) | albedo path IoU, median (bare / labels) | MSE (bare / labels) |\n|---|---|---|---|---|\n",
+        "\n| scene | paths | seed | VeC (bare / labels) | albedo path IoU, median (bare / labels) | MSE (bare / labels) |\n|---|---|---|---|---|---|\n",
     );
     for photo in rows.iter().filter(|r| r.run == Run::Photo) {
-        let Some(labelled) = rows.iter().find(|r| {
-            r.run == Run::PhotoLabels && r.scene == photo.scene && r.budget == photo.budget
-        }) else {
+        let Some(labelled) = partner(photo, Run::PhotoLabels) else {
             continue;
         };
         let score = |r: &Row, f: fn(&ObjectScores) -> Option<f32>| {
@@ -259,9 +271,10 @@ fn summary(rows: &[Row]) -> String {
         };
         let _ = writeln!(
             out,
-            "| {} | {} | {} / {} | {} / {} | {:.5} / {:.5} |",
+            "| {} | {} | {} | {} / {} | {} / {} | {:.5} / {:.5} |",
             photo.scene,
             photo.budget,
+            photo.seed,
             score(photo, |o| o.vec),
             score(labelled, |o| o.vec),
             score(photo, |o| o.median_iou),
