@@ -560,6 +560,7 @@ fn skin_table(rows: &[Row]) -> String {
     let mut keys: Vec<(&str, u32)> = scored.iter().map(|(r, _)| (r.method, r.budget)).collect();
     keys.sort_unstable();
     keys.dedup();
+    let seeds = seeds(rows);
     for (method, budget) in keys {
         let group: Vec<&SkinScores> = scored
             .iter()
@@ -570,9 +571,8 @@ fn skin_table(rows: &[Row]) -> String {
         let worst = group.iter().map(|s| s.mean_colour).fold(0.0, f32::max);
         let _ = writeln!(
             out,
-            "| mean of {} (worst {worst:.2}) | {method} | {budget} | {} | {:.2} | {:.2} |",
+            "| mean of {} (worst {worst:.2}) | {method} | {budget} | {seeds} | {:.2} | {:.2} |",
             group.len(),
-            seeds(rows),
             group.iter().map(|s| s.mean_colour).sum::<f32>() / n,
             group.iter().map(|s| s.per_pixel).sum::<f32>() / n,
         );
