@@ -621,7 +621,7 @@ fn set_fill(id: PathId, path: &mut Path, color: [f32; 3], opacity: f32) -> Chang
 
 /// Per pixel, the topmost albedo path whose silhouette (coverage ≥ ½, the path rendered alone
 /// as the paper does) holds it.
-fn albedo_owner(
+pub(crate) fn albedo_owner(
     rasterizer: &mut Rasterizer,
     scene: &Scene,
     width: usize,

@@ -12,7 +12,7 @@ use super::coarse::{CoarseSettings, PlateauSettings, halvings_of};
 use super::init::InitState;
 use super::keep::{Keep, KeepRun, KeepSettings};
 use super::params::{Error, Params, ResolvedMode};
-use super::polish::{self, PolishLoss, PolishSettings};
+use super::polish::{self, LightnessFloor, PolishLoss, PolishSettings};
 use super::reconstruct::{ReconstructionRun, optimise_reconstruction};
 use super::refine::{Growth, RefinePlan, RefineSettings, refine};
 use super::segments::SplitPlan;
@@ -302,10 +302,12 @@ impl<'a> Optimisation<'a> {
             ResolvedMode::Simple => Growth {
                 layer: LayerKind::Albedo,
                 color_max: 1.0,
+                outline: false,
             },
             ResolvedMode::Photo => Growth {
                 layer: LayerKind::Shade,
                 color_max: self.settings.structure.illumination_cap,
+                outline: true,
             },
         };
         let coarse_rounds = it
@@ -359,6 +361,7 @@ impl<'a> Optimisation<'a> {
         let weight =
             settings.similarity_weight(self.target.width * self.target.height, self.params.paths);
         let full_loss = PolishLoss::new(&self.target, weight);
+        let floor = LightnessFloor::new(&self.scene, settings, mode);
         // The stage's loss before: the SVG model at full size, before any coarse iteration
         // (without one, the fine polish's first loss is that number).
         let before = (coarse_count > 0).then(|| {
@@ -378,7 +381,7 @@ impl<'a> Optimisation<'a> {
                 scene,
                 (target, loss),
                 part.span,
-                (settings, mode),
+                (settings, mode, floor.as_ref()),
                 keep,
                 stage,
             )

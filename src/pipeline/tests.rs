@@ -300,6 +300,10 @@ fn a_budget_below_the_initialisation_is_an_internal_error() {
 /// Coarse to fine: the structure, most of the reconstruction and the first refinement round run
 /// at 24 px, the rest at 48 px. Same result shape as a run at full size (budget, layers, SVG
 /// ranges, full-size previews), a loss within reach of it, and progress that never goes back.
+/// "Within reach": the polished loss at most twice the full-size run's. At this size the ratio
+/// moves with the seed: 1.24-1.65 over seeds 0-7 with ellipse starts in the refinement,
+/// 1.39-1.81 with outline starts (`RefineSettings::outline_vertices`), with or without the
+/// polish's lightness floor (`PolishSettings::albedo_lightness_drop`).
 #[test]
 fn coarse_to_fine_keeps_the_result_shape_and_the_progress_order() {
     let coarse = CoarseSettings {
@@ -331,7 +335,7 @@ fn coarse_to_fine_keeps_the_result_shape_and_the_progress_order() {
     }
     let polish = |r: &OptimiseReport| r.losses.iter().find(|l| l.stage == "polish").unwrap().after;
     assert!(
-        polish(&report) < 1.5 * polish(&fine),
+        polish(&report) < 2.0 * polish(&fine),
         "{:?} vs {:?}",
         report.losses,
         fine.losses
@@ -345,3 +349,4 @@ fn coarse_to_fine_keeps_the_result_shape_and_the_progress_order() {
         }
     }
 }
+
