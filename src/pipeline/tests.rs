@@ -349,4 +349,3 @@ fn coarse_to_fine_keeps_the_result_shape_and_the_progress_order() {
         }
     }
 }
-
