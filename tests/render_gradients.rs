@@ -289,3 +289,34 @@ fn an_image_backdrop_is_the_affine_blend_of_black_and_white() {
         }
     }
 }
+
+#[test]
+fn a_backward_with_the_colours_apart_is_two_backwards_in_one() {
+    // The colours' gradient from the second dL/dPixel, the points' and opacities' from the
+    // first, bit for bit as two separate backwards give them.
+    let size = 40;
+    let mut rng = SplitMix64(33);
+    let paths = mixed_scene(&mut rng, size as f32, 6, 2);
+    let base = [0.9, 1.0, 0.8];
+    let mut raster = Rasterizer::new();
+    let image = render(&mut raster, &paths, base, size);
+    let mut d = [0, 1].map(|_| {
+        let (target, weights) = target_and_weights(&mut rng, size * size * 3);
+        weighted_sq_loss(&image, &target, &weights).1
+    });
+    // Rows the shapes' gradient leaves out still count for the colours.
+    d[0].data[..3 * size * 20].fill(0.0);
+    let [d_out, d_colour] = &d;
+
+    let mut apart = zero_grads(&paths);
+    raster.backward_colour_apart(&paths, base, (d_out, d_colour), &mut apart);
+    let (mut shapes, mut colours) = (zero_grads(&paths), zero_grads(&paths));
+    raster.backward(&paths, base, d_out, &mut shapes);
+    raster.backward(&paths, base, d_colour, &mut colours);
+    for ((g, s), c) in apart.iter().zip(&shapes).zip(&colours) {
+        assert_eq!(g.points, s.points);
+        assert_eq!(g.opacity.to_bits(), s.opacity.to_bits());
+        assert_eq!(g.color.map(f32::to_bits), c.color.map(f32::to_bits));
+    }
+    assert!(colours.iter().any(|c| c.color != [0.0; 3]));
+}

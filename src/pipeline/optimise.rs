@@ -358,9 +358,9 @@ impl<'a> Optimisation<'a> {
         let polish_parts = coarse.polish_parts(coarse_count, self.halvings());
         let (settings, structure) = (&self.settings.polish, &self.settings.structure);
         let mode = self.mode;
-        let weight =
-            settings.similarity_weight(self.target.width * self.target.height, self.params.paths);
-        let full_loss = PolishLoss::new(&self.target, weight);
+        let weights =
+            settings.similarity_weights(self.target.width * self.target.height, self.params.paths);
+        let full_loss = PolishLoss::new(&self.target, weights);
         let floor = LightnessFloor::new(&self.scene, settings, mode);
         // The stage's loss before: the SVG model at full size, before any coarse iteration
         // (without one, the fine polish's first loss is that number).
@@ -371,7 +371,7 @@ impl<'a> Optimisation<'a> {
         let fine = self.coarse_then_fine(total, &polish_parts, |scene, target, part| {
             let coarse_loss;
             let loss = if part.coarse {
-                coarse_loss = PolishLoss::new(target, weight);
+                coarse_loss = PolishLoss::new(target, weights);
                 &coarse_loss
             } else {
                 &full_loss

@@ -17,6 +17,9 @@
 //!      further down the stack can change the pixel and the walk stops;
 //! 3. push dL/d(signed area) through each path's edges in the pass (see `raster`).
 //!
+//! With a second dL/dPixel for the colours (`Band::d_colour`), step 2 sums `α_k · T_k · g'`
+//! with that `g'` into dL/dcolour; everything else takes `g`.
+//!
 //! Memory per pass grows with the paths' overlap, so deep scenes that are scan-converted again
 //! use fewer rows per pass ([`rows_per_pass`]) to keep the working set in cache.
 
@@ -132,6 +135,8 @@ struct RowWork {
     /// The row's backdrop and dL/dPixel as channel planes (R…, G…, B…), whole groups wide.
     color: Vec<f32>,
     grad: Vec<f32>,
+    /// The row's dL/dPixel for the colours, as `grad`, when it is apart (else empty).
+    grad_colour: Vec<f32>,
 }
 
 /// One path of a row.
@@ -206,6 +211,8 @@ pub(super) struct Band<'a> {
     pub paths: &'a [Path],
     pub backdrop: Backdrop<'a>,
     pub d_out: &'a Image,
+    /// dL/dPixel for the fill colours, when it is not `d_out`.
+    pub d_colour: Option<&'a Image>,
     pub band: usize,
     pub rows_per_pass: usize,
     /// The signed areas the forward kept for this band's strip, if it kept them.
@@ -340,24 +347,24 @@ impl Band<'_> {
         work.color.resize(3 * planes, 0.0);
         work.grad.resize(3 * planes, 0.0);
         self.fill_backdrop(y, planes, &mut work.color);
-        let d_row = &self.d_out.data[3 * y * width..3 * (y + 1) * width];
-        {
-            let (gr, rest) = work.grad.split_at_mut(planes);
-            let (gg, gb) = rest.split_at_mut(planes);
-            for (x, px) in d_row.chunks_exact(3).enumerate() {
-                gr[x] = px[0];
-                gg[x] = px[1];
-                gb[x] = px[2];
+        let row = 3 * y * width..3 * (y + 1) * width;
+        to_planes(&self.d_out.data[row.clone()], planes, &mut work.grad);
+        match self.d_colour {
+            Some(d_colour) => {
+                work.grad_colour.resize(3 * planes, 0.0);
+                to_planes(&d_colour.data[row], planes, &mut work.grad_colour);
             }
-            for plane in [gr, gg, gb] {
-                plane[width..].fill(0.0);
-            }
+            None => work.grad_colour.clear(),
         }
         work.index_starts(groups);
         if work.stack.len() < work.paths.len() {
             work.stack.resize(work.paths.len(), [0.0; GROUP]);
         }
-        walk_groups(work, &mut ws.area, groups);
+        if self.d_colour.is_some() {
+            walk_groups::<true>(work, &mut ws.area, groups);
+        } else {
+            walk_groups::<false>(work, &mut ws.area, groups);
+        }
         // The row's lane sums into the band's partials.
         for p in &work.paths {
             let sums = &mut work.sums[p.slot as usize];
@@ -371,9 +378,28 @@ impl Band<'_> {
     }
 }
 
-/// The groups `0..groups` of one row (step 2's inner loop).
+/// An interleaved RGB row as three channel planes of `planes` values each (zero past the row)
+/// in `out`.
 #[inline(always)]
-fn walk_groups(work: &mut RowWork, area: &mut [f32], groups: usize) {
+fn to_planes(row: &[f32], planes: usize, out: &mut [f32]) {
+    let width = row.len() / 3;
+    let (r, rest) = out.split_at_mut(planes);
+    let (g, b) = rest.split_at_mut(planes);
+    for (x, px) in row.chunks_exact(3).enumerate() {
+        r[x] = px[0];
+        g[x] = px[1];
+        b[x] = px[2];
+    }
+    for plane in [r, g, b] {
+        plane[width..].fill(0.0);
+    }
+}
+
+/// The groups `0..groups` of one row (step 2's inner loop); `APART`: whether the colours
+/// have their own dL/dPixel (`RowWork::grad_colour`), a constant so that the usual walk
+/// compiles without it.
+#[inline(always)]
+fn walk_groups<const APART: bool>(work: &mut RowWork, area: &mut [f32], groups: usize) {
     let planes = groups * GROUP;
     work.cover.clear();
     for g in 0..groups {
@@ -387,12 +413,18 @@ fn walk_groups(work: &mut RowWork, area: &mut [f32], groups: usize) {
             let at = c * planes + g * GROUP;
             plane[at..at + GROUP].try_into().expect("a group")
         };
+        let grad = [0, 1, 2].map(|c| lanes(&work.grad, c));
         let group = Group {
             index: g,
-            grad: [0, 1, 2].map(|c| lanes(&work.grad, c)),
+            grad,
+            grad_colour: if APART {
+                [0, 1, 2].map(|c| lanes(&work.grad_colour, c))
+            } else {
+                grad
+            },
             color: [0, 1, 2].map(|c| lanes(&work.color, c)),
         };
-        group.run(
+        group.run::<APART>(
             &work.paths,
             &work.cover,
             area,
@@ -459,10 +491,12 @@ impl RowWork {
     }
 }
 
-/// One group of a row: its dL/dPixel and backdrop colour, per channel.
+/// One group of a row: its dL/dPixel (for the colours, and for the rest) and backdrop colour,
+/// per channel.
 struct Group {
     index: usize,
     grad: [Lanes; 3],
+    grad_colour: [Lanes; 3],
     color: [Lanes; 3],
 }
 
@@ -470,7 +504,7 @@ impl Group {
     /// The forward and backward walks over the paths `cover` (indices into `paths`, in paint
     /// order) covering this group; their signed areas in `area` become dL/d(signed area).
     #[inline(always)]
-    fn run(
+    fn run<const APART: bool>(
         &self,
         paths: &[RowPath],
         cover: &[u32],
@@ -479,8 +513,9 @@ impl Group {
         sums: &mut [PaintSums],
     ) {
         let at = |p: &RowPath| p.offset as usize + (self.index - p.g_lo as usize) * GROUP;
-        let g = self.grad;
-        if g.iter().flatten().all(|&v| v == 0.0) {
+        let (g, g_colour) = (self.grad, self.grad_colour);
+        let idle = |g: &[Lanes; 3]| g.iter().flatten().all(|&v| v == 0.0);
+        if idle(&g) && (!APART || idle(&g_colour)) {
             for &i in cover {
                 let o = at(&paths[i as usize]);
                 area[o..o + GROUP].fill(0.0);
@@ -515,7 +550,7 @@ impl Group {
             let a_t: Lanes = std::array::from_fn(|l| cov[l] * p.opacity * t[l]);
             let sum = &mut sums[p.slot as usize];
             for c in 0..3 {
-                sum.color[c] = std::array::from_fn(|l| sum.color[c][l] + a_t[l] * g[c][l]);
+                sum.color[c] = std::array::from_fn(|l| sum.color[c][l] + a_t[l] * g_colour[c][l]);
             }
             sum.opacity = std::array::from_fn(|l| sum.opacity[l] + cov[l] * v[l]);
             // dL/d(signed area): dL/dα · opacity · sign(area) where the coverage is not
@@ -628,9 +663,10 @@ impl Band<'_> {
     /// stage's overlap term, then costs only where it acts).
     fn rows_without_gradient(&self, row0: usize, rows: usize) -> bool {
         let width = self.d_out.width;
-        self.d_out.data[3 * row0 * width..3 * (row0 + rows) * width]
-            .iter()
-            .all(|&v| v == 0.0)
+        let range = 3 * row0 * width..3 * (row0 + rows) * width;
+        std::iter::once(self.d_out)
+            .chain(self.d_colour)
+            .all(|d| d.data[range.clone()].iter().all(|&v| v == 0.0))
     }
 
     /// Row `y` of the backdrop as channel planes (R…, G…, B…), `planes` values each, in `out`.
@@ -643,14 +679,7 @@ impl Band<'_> {
                 }
             }
             Backdrop::Image(image) => {
-                let row = &image.data[3 * y * width..3 * (y + 1) * width];
-                let (r, rest) = out.split_at_mut(planes);
-                let (g, b) = rest.split_at_mut(planes);
-                for (x, px) in row.chunks_exact(3).enumerate() {
-                    r[x] = px[0];
-                    g[x] = px[1];
-                    b[x] = px[2];
-                }
+                to_planes(&image.data[3 * y * width..3 * (y + 1) * width], planes, out);
             }
         }
     }

@@ -7,6 +7,8 @@
 //!   each path's alpha at a pixel is its exact area coverage × opacity. Non-zero fill.
 //! - [`Rasterizer::backward`] takes dLoss/dPixel for that same render and **adds** dLoss/d(points,
 //!   colour, opacity) into `grads` (one [`PathGrad`] per path, same shapes as the paths).
+//! - [`Rasterizer::backward_colour_apart`] is the same backward with the fill colours' share
+//!   taken from a second dLoss/dPixel: for a loss term that should move geometry and opacity only.
 //! - Colours are not clamped here (illumination colours may exceed 1); opacities must be in [0, 1].
 //! - Results are bit-identical whatever the rayon thread count.
 //! - [`Rasterizer::render_over_strips`] renders chosen strips of [`STRIP_ROWS`] rows only, each
@@ -533,6 +535,26 @@ impl Rasterizer {
         self.backward_over(paths, Backdrop::Color(base), d_out, grads);
     }
 
+    /// [`backward`](Self::backward), but dLoss/d(fill colour) from `d_colour` (another
+    /// dLoss/dPixel of the same render) rather than `d_out`: the points and opacities get
+    /// `d_out`'s gradient, the colours `d_colour`'s, in one pass.
+    ///
+    /// # Panics
+    /// As [`backward`](Self::backward), and if `d_colour` is not `d_out`'s size.
+    pub fn backward_colour_apart(
+        &mut self,
+        paths: &[Path],
+        base: [f32; 3],
+        (d_out, d_colour): (&Image, &Image),
+        grads: &mut [PathGrad],
+    ) {
+        assert!(
+            (d_colour.width, d_colour.height) == (d_out.width, d_out.height) && d_colour.is_whole(),
+            "d_colour must be d_out's size"
+        );
+        self.backward_in(paths, Backdrop::Color(base), (d_out, Some(d_colour)), grads);
+    }
+
     /// [`backward`](Self::backward) of [`render_over`](Self::render_over) with `backdrop`.
     ///
     /// # Panics
@@ -542,6 +564,17 @@ impl Rasterizer {
         paths: &[Path],
         backdrop: Backdrop,
         d_out: &Image,
+        grads: &mut [PathGrad],
+    ) {
+        self.backward_in(paths, backdrop, (d_out, None), grads);
+    }
+
+    /// The backward, with the colours' dLoss/dPixel apart when one is given.
+    fn backward_in(
+        &mut self,
+        paths: &[Path],
+        backdrop: Backdrop,
+        (d_out, d_colour): (&Image, Option<&Image>),
         grads: &mut [PathGrad],
     ) {
         let (width, height) = (d_out.width, d_out.height);
@@ -570,6 +603,7 @@ impl Rasterizer {
                     paths,
                     backdrop,
                     d_out,
+                    d_colour,
                     band,
                     rows_per_pass,
                     stored: stored.map(|strips| &strips[band]),
