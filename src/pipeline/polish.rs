@@ -133,9 +133,10 @@ impl PolishSettings {
     /// [`Self::similarity_weight`] for the shapes; for the colours, the weight at
     /// [`SIMILARITY_REFERENCE_PATHS`] when the budget is above it. The term asks for the
     /// photo's edges, and grown for large budgets it also pulled fill colours away from the
-    /// photo's to sharpen texture: the mean skin colour of the 512² astronaut went 2.83 ΔE00
-    /// from the photo's at 256 paths (1.95 with the colours held to the 64-path weight) and of
-    /// paste_hopper_coffee 3.82 at 128 paths (1.63).
+    /// photo's to sharpen texture: the mean skin colour of the 512² astronaut was 2.80 / 2.73
+    /// / 3.19 ΔE00 from the photo's at 256 paths (seeds 0 / 7 / 13; 1.99 / 2.02 / 1.70 with
+    /// the colours at the 64-path weight), paste_hopper_coffee's 3.80 / 1.40 / 3.38 at 128
+    /// paths (2.09 / 1.29 / 2.40).
     pub(crate) fn similarity_weights(&self, pixels: usize, paths: u32) -> SimilarityWeights {
         let reference = SIMILARITY_REFERENCE_PATHS as u32;
         SimilarityWeights {
