@@ -8,7 +8,8 @@
 //! - [`Rasterizer::backward`] takes dLoss/dPixel for that same render and **adds** dLoss/d(points,
 //!   colour, opacity) into `grads` (one [`PathGrad`] per path, same shapes as the paths).
 //! - [`Rasterizer::backward_colour_apart`] is the same backward with the fill colours' share
-//!   taken from a second dLoss/dPixel: for a loss term that should move geometry and opacity only.
+//!   taken from a second dLoss/dPixel: for a loss whose terms weigh on the colours otherwise
+//!   than on geometry and opacity.
 //! - Colours are not clamped here (illumination colours may exceed 1); opacities must be in [0, 1].
 //! - Results are bit-identical whatever the rayon thread count.
 //! - [`Rasterizer::render_over_strips`] renders chosen strips of [`STRIP_ROWS`] rows only, each
