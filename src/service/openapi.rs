@@ -329,15 +329,12 @@ fn signed_urls(document: &mut Document) {
                 .name(super::signed::TOKEN_PARAM)
                 .parameter_in(ParameterIn::Query)
                 .required(Required::False)
-                .schema(Some(
-                    ObjectBuilder::new()
-                        .schema_type(Type::String)
-                        .pattern(Some(r"^[0-9]+\.[A-Za-z0-9_-]+$")),
-                ))
+                .schema(Some(ObjectBuilder::new().schema_type(Type::String)))
                 .description(Some(
                     "On a server with API keys, instead of `Authorization`: the job's \
                      `signed.token`, which opens this job's files until it expires (403 \
-                     `token-expired`; a token of another job: 403 `token-invalid`).",
+                     `token-expired`; a token of another job, or not a token: 403 \
+                     `token-invalid`). Ignored on a server without keys.",
                 ))
                 .build()
                 .into(),
