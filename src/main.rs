@@ -23,7 +23,8 @@ enum Command {
     Render(cli::render::Args),
     Eval(cli::eval::Args),
     /// Run the HTTP vectorisation service (jobs API, progress, results; see api/openapi.yaml).
-    Serve(cli::serve::ServeArgs),
+    // Boxed: its many settings make it several times the size of the other variants.
+    Serve(Box<cli::serve::ServeArgs>),
     /// Run queued jobs from the shared PostgreSQL backend (`--database-url`), with no HTTP API.
     Worker(cli::serve::WorkerArgs),
     Openapi(cli::openapi::Args),
@@ -40,7 +41,7 @@ fn main() -> ExitCode {
         Command::Edit(args) => cli::edit::run(&args).map_err(|e| e.to_string()),
         Command::Render(args) => cli::render::run(&args).map_err(|e| e.to_string()),
         Command::Eval(args) => cli::eval(&args),
-        Command::Serve(args) => return cli::serve::run(args),
+        Command::Serve(args) => return cli::serve::run(*args),
         Command::Worker(args) => return cli::serve::work(args),
         Command::Openapi(args) => cli::openapi::run(&args),
         Command::Healthcheck(args) => cli::healthcheck::run(&args),

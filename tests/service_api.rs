@@ -213,6 +213,19 @@ async fn api_keys_guard_v1_and_jobs_are_private_to_their_key() {
         )
         .await;
     assert_eq!(wrong.status, StatusCode::UNAUTHORIZED);
+    // The scheme is case-insensitive (RFC 9110 section 11.1); the key is not.
+    for authorization in ["bearer alpha-key", "BEARER alpha-key", "Bearer  alpha-key"] {
+        let listed = server
+            .get_with("/v1/jobs", &[("authorization", authorization)])
+            .await;
+        assert_eq!(listed.status, StatusCode::OK, "{authorization}");
+    }
+    for authorization in ["Bearer ALPHA-KEY", "Basic alpha-key", "alpha-key"] {
+        let listed = server
+            .get_with("/v1/jobs", &[("authorization", authorization)])
+            .await;
+        assert_eq!(listed.status, StatusCode::UNAUTHORIZED, "{authorization}");
+    }
     assert_eq!(
         server.get("/healthz").await.status,
         StatusCode::OK,
@@ -354,6 +367,7 @@ async fn cors_allows_configured_origins_only() {
     let preflight = [
         ("origin", "https://app.example"),
         ("access-control-request-method", "POST"),
+        ("access-control-request-headers", "authorization, prefer"),
     ];
     let allowed = server
         .request(Method::OPTIONS, "/v1/jobs", &preflight, Vec::new())
@@ -361,6 +375,11 @@ async fn cors_allows_configured_origins_only() {
     assert_eq!(
         allowed.header("access-control-allow-origin"),
         Some("https://app.example")
+    );
+    // Named, not `*`: the Fetch standard's wildcard does not cover Authorization.
+    assert_eq!(
+        allowed.header("access-control-allow-headers"),
+        Some("authorization, prefer")
     );
     let other = server
         .request(
@@ -371,4 +390,116 @@ async fn cors_allows_configured_origins_only() {
         )
         .await;
     assert_eq!(other.header("access-control-allow-origin"), None);
+}
+
+/// `covec serve` on `addr` with `args` and `env` (and no API keys or anonymity from the
+/// caller's environment): `None` once it prints that it listens (then it is killed), else its
+/// exit status and standard error.
+fn serve_outcome(
+    addr: &str,
+    args: &[&str],
+    env: &[(&str, &str)],
+) -> Option<(std::process::ExitStatus, String)> {
+    use std::io::{BufRead, BufReader, Read};
+    let data = DataDir::plain("anonymous");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_covec"))
+        .args(["serve", "--addr", addr, "--data-dir"])
+        .arg(&data.0)
+        .args(args)
+        .env_remove("COVEC_API_KEYS")
+        .env_remove("COVEC_ALLOW_ANONYMOUS")
+        .envs(env.iter().copied())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    if line.starts_with("covec serve: listening on ") {
+        child.kill().unwrap();
+        child.wait().unwrap();
+        return None;
+    }
+    let status = child.wait().unwrap();
+    let mut stderr = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    Some((status, stderr))
+}
+
+#[test]
+fn serving_other_hosts_without_keys_needs_allow_anonymous() {
+    // Reachable from other hosts, no keys: a one-line reason and a failed exit.
+    for env in [&[][..], &[("COVEC_ALLOW_ANONYMOUS", "false")][..]] {
+        let (status, stderr) =
+            serve_outcome("0.0.0.0:0", &[], env).expect("covec serve started open");
+        assert!(!status.success());
+        assert_eq!(stderr.lines().count(), 1, "{stderr}");
+        assert!(
+            stderr.starts_with("covec serve: refusing to serve 0.0.0.0:0 without API keys")
+                && stderr.contains("--allow-anonymous"),
+            "{stderr}"
+        );
+    }
+    // Told so, by flag or variable; or with keys; or on loopback: it starts.
+    assert!(serve_outcome("0.0.0.0:0", &["--allow-anonymous"], &[]).is_none());
+    assert!(serve_outcome("0.0.0.0:0", &[], &[("COVEC_ALLOW_ANONYMOUS", "true")]).is_none());
+    assert!(serve_outcome("0.0.0.0:0", &["--api-keys", "k"], &[]).is_none());
+    assert!(serve_outcome("127.0.0.1:0", &[], &[]).is_none());
+    if ipv6_loopback() {
+        assert!(serve_outcome("[::1]:0", &[], &[]).is_none());
+    }
+}
+
+/// Whether this machine has an IPv6 loopback address to listen on.
+fn ipv6_loopback() -> bool {
+    std::net::TcpListener::bind("[::1]:0").is_ok()
+}
+
+/// A plain `GET` over HTTP/1.0: the status code and body.
+fn get_plain(addr: &str, path: &str) -> (u16, String) {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(addr).unwrap();
+    write!(stream, "GET {path} HTTP/1.0\r\nHost: {addr}\r\n\r\n").unwrap();
+    let mut answer = String::new();
+    stream.read_to_string(&mut answer).unwrap();
+    let status = answer[9..12].parse().unwrap();
+    let body = answer.split_once("\r\n\r\n").map_or("", |(_, body)| body);
+    (status, body.to_owned())
+}
+
+#[tokio::test]
+async fn ops_addr_serves_probes_and_keeps_metrics_off_the_api_port() {
+    let dir = DataDir::new("ops-addr");
+    let ops = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .to_string();
+    let server = Server::start(&dir.0, &["--ops-addr", &ops]);
+    let api = server.get("/metrics").await;
+    assert_eq!(api.status, StatusCode::NOT_FOUND);
+    assert_eq!(problem(&api)["code"], "route-not-found");
+    assert_eq!(server.get("/healthz").await.status, StatusCode::OK);
+    let ops = ops.clone();
+    let (metrics, healthz, readyz) = tokio::task::spawn_blocking(move || {
+        (
+            get_plain(&ops, "/metrics"),
+            get_plain(&ops, "/healthz"),
+            get_plain(&ops, "/readyz"),
+        )
+    })
+    .await
+    .unwrap();
+    assert_eq!(metrics.0, 200);
+    assert!(metrics.1.contains("covec_jobs_queued"), "{}", metrics.1);
+    assert_eq!(healthz.0, 200);
+    assert_eq!(readyz.0, 200, "{}", readyz.1);
+    server.stop();
 }

@@ -472,6 +472,16 @@ async fn prefer_wait_answers_with_the_finished_job_or_202_in_time() {
     let cancel = server.cancel(&id).await;
     assert!(cancel.status.is_success(), "{}", cancel.text());
 
+    // A bare `wait` (as other APIs write it): as long as the server allows.
+    let bare = server.submit(&quick, &[("prefer", "wait")]).await;
+    assert_eq!(bare.status, StatusCode::OK, "{}", bare.text());
+    assert_eq!(bare.header("preference-applied"), Some("wait=2"));
+    let pending = server.submit(&long, &[("prefer", "Wait")]).await;
+    assert_eq!(pending.status, StatusCode::ACCEPTED, "{}", pending.text());
+    assert_eq!(pending.header("preference-applied"), Some("wait=2"));
+    let id = pending.json()["id"].as_str().unwrap().to_owned();
+    assert!(server.cancel(&id).await.status.is_success());
+
     // Without the preference, or with a malformed one: 201 at once, as before.
     let plain = server.submit(&quick, &[("prefer", "wait=soon")]).await;
     assert_eq!(plain.status, StatusCode::CREATED, "{}", plain.text());

@@ -10,7 +10,8 @@ use std::time::Duration;
 use clap::{Args, ValueEnum};
 
 use covec::service::{
-    self, Config, ConnectionLimits, InputLimits, QueueConfig, Scheduling, WebhookConfig,
+    self, Config, ConnectionLimits, InputLimits, QueueConfig, Scheduling, SignedUrlConfig,
+    WebhookConfig,
 };
 
 /// Storage, job slots and what one job may take: shared by `serve` and `worker`. Every option
@@ -194,7 +195,8 @@ pub struct ServeArgs {
     /// Largest request body, in bytes.
     #[arg(long, env = "COVEC_MAX_BODY_BYTES", default_value_t = InputLimits::default().max_body_bytes)]
     max_body_bytes: u64,
-    /// Accepted API keys, comma-separated; none means no authentication.
+    /// Accepted API keys, comma-separated; none means no authentication, which is refused on
+    /// an address other than loopback unless --allow-anonymous.
     #[arg(
         long,
         env = "COVEC_API_KEYS",
@@ -202,6 +204,21 @@ pub struct ServeArgs {
         hide_env_values = true
     )]
     api_keys: Vec<String>,
+    /// Serve without API keys on an address other hosts can reach (anyone who reaches it can
+    /// read every job): for a trusted network or a proxy that authenticates.
+    #[arg(long, env = "COVEC_ALLOW_ANONYMOUS")]
+    allow_anonymous: bool,
+    /// The key signed result URLs are signed with (any string, 32 random bytes or more); every
+    /// API replica needs the same. Default: a random one per process.
+    #[arg(long, env = "COVEC_SIGNED_URL_SECRET", hide_env_values = true)]
+    signed_url_secret: Option<String>,
+    /// Seconds a signed result URL works (up to a quarter longer, so polls get stable URLs).
+    #[arg(long, env = "COVEC_SIGNED_URL_TTL", default_value_t = Config::default().signed_urls.lifetime.as_secs())]
+    signed_url_ttl: u64,
+    /// Also serve `/healthz`, `/readyz` and `/metrics` on this address (for probes and
+    /// scraping), and `/metrics` only there.
+    #[arg(long, env = "COVEC_OPS_ADDR")]
+    ops_addr: Option<SocketAddr>,
     /// Origins allowed by CORS, comma-separated; `*` allows any.
     #[arg(long, env = "COVEC_CORS_ORIGINS", value_delimiter = ',')]
     cors_origins: Vec<String>,
@@ -261,6 +278,12 @@ impl ServeArgs {
                 .into_iter()
                 .filter(|key| !key.is_empty())
                 .collect(),
+            allow_anonymous: self.allow_anonymous,
+            signed_urls: SignedUrlConfig {
+                secret: self.signed_url_secret.filter(|secret| !secret.is_empty()),
+                lifetime: Duration::from_secs(self.signed_url_ttl),
+            },
+            ops_addr: self.ops_addr,
             cors_origins: self
                 .cors_origins
                 .into_iter()

@@ -1,15 +1,17 @@
-//! Optional API keys: with keys configured, every `/v1` request needs `Authorization: Bearer <key>`,
-//! and each job is visible only to the key that created it. The key is also whose turn a job
-//! takes in the queue and whose limits it counts against ([`Client`]).
+//! Optional API keys: with keys configured, every `/v1` request needs `Authorization: Bearer <key>`
+//! (the scheme in any case, RFC 9110 section 11.1), or for a job's files a signed URL's token
+//! ([`super::signed`]), and each job is visible only to the key that created it. The key is also
+//! whose turn a job takes in the queue and whose limits it counts against ([`Client`]).
 
 use axum::extract::{Request, State};
-use axum::http::header;
+use axum::http::{Method, header};
 use axum::middleware::Next;
 use axum::response::Response;
 
 use super::AppState;
 use super::error::ApiError;
-use super::model::key_id;
+use super::model::{key_id, now_ms};
+use super::signed;
 
 /// Who is asking: a hash of their API key, or `None` when the server has no keys.
 /// Only the hash is stored with jobs and logged.
@@ -41,6 +43,15 @@ fn client_label(value: &[u8]) -> Result<&str, ApiError> {
     }
 }
 
+/// The credentials of an `Authorization` value: what follows the `Bearer` scheme, whose name
+/// is case-insensitive (RFC 9110 section 11.1).
+fn bearer(value: &str) -> Option<&str> {
+    let (scheme, credentials) = value.trim_start().split_once(' ')?;
+    scheme
+        .eq_ignore_ascii_case("bearer")
+        .then(|| credentials.trim())
+}
+
 pub async fn require_key(
     State(state): State<AppState>,
     mut request: Request,
@@ -55,11 +66,15 @@ pub async fn require_key(
             .headers()
             .get(header::AUTHORIZATION)
             .and_then(|value| value.to_str().ok())
-            .and_then(|value| value.strip_prefix("Bearer "))
-            .map(|key| key_id(key.trim()));
+            .and_then(bearer)
+            .map(key_id);
         match presented {
             Some(id) if state.key_ids.contains(&id) => Some(id),
-            _ => return Err(ApiError::Unauthorized),
+            Some(_) => return Err(ApiError::Unauthorized),
+            None => {
+                let job = signed_job(&state, &request)?;
+                owner_of(&state, job).await?
+            }
         }
     };
     // Checked whether or not it counts (with API keys the key decides), so a request is valid
@@ -76,4 +91,27 @@ pub async fn require_key(
     request.extensions_mut().insert(Owner(owner));
     request.extensions_mut().insert(Client(client));
     Ok(next.run(request).await)
+}
+
+/// The job whose file a request without a key asks for, when its query holds a token signed
+/// for that job ([`signed`]); else 401 (or 403 for a token that is not that job's, or expired).
+fn signed_job(state: &AppState, request: &Request) -> Result<String, ApiError> {
+    let readable = matches!(*request.method(), Method::GET | Method::HEAD);
+    let job = signed::file_route_job(request.uri().path()).filter(|_| readable);
+    let token = signed::query_token(request.uri().query());
+    let (Some(job), Some(token)) = (job, token) else {
+        return Err(ApiError::Unauthorized);
+    };
+    state.signer.check(job, token, now_ms())?;
+    Ok(job.to_owned())
+}
+
+/// The owner of `job`, looked up so that the handler then finds the job as its owner would (a
+/// job that does not exist is the handler's 404).
+async fn owner_of(state: &AppState, job: String) -> Result<Option<String>, ApiError> {
+    let queue = state.queue.clone();
+    let entry = tokio::task::spawn_blocking(move || queue.find(&job))
+        .await
+        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    Ok(entry.and_then(|entry| entry.owner.clone()))
 }

@@ -6,6 +6,7 @@
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
+use super::derived::DerivedError;
 use super::inputs::InputError;
 use super::model::Problem;
 use super::queue::Refusal;
@@ -14,6 +15,7 @@ use super::runner::JobFailure;
 use super::store::StoreError;
 use super::webhooks::WebhookRefusal;
 use crate::imageio;
+use crate::output::RasterError;
 
 /// A response in the API document.
 type DocResponse = utoipa::openapi::RefOr<utoipa::openapi::Response>;
@@ -73,6 +75,16 @@ impl utoipa::IntoResponses for ResultProblems {
     }
 }
 
+/// [`ResultProblems`] and 403 for a signed URL's token that is not this job's
+/// (`token-invalid`) or has expired (`token-expired`): what every file of a job answers.
+pub struct FileProblems;
+
+impl utoipa::IntoResponses for FileProblems {
+    fn responses() -> std::collections::BTreeMap<String, DocResponse> {
+        with_unavailable(problem_statuses(&[400, 401, 403, 404, 409, 410]))
+    }
+}
+
 /// `responses` and 503 ([`Unavailable`]).
 fn with_unavailable(
     mut responses: std::collections::BTreeMap<String, DocResponse>,
@@ -125,6 +137,10 @@ fn problem_response(description: &str, retry_after: bool) -> DocResponse {
 pub enum ApiError {
     #[error("this server needs `Authorization: Bearer <key>` with a configured API key")]
     Unauthorized,
+    #[error("the URL's token is not one this server signed for this job's files")]
+    TokenInvalid,
+    #[error("the URL's token has expired; get a fresh one from the job resource")]
+    TokenExpired,
     #[error("no job `{0}`")]
     JobNotFound(String),
     #[error("job `{0}` ended longer ago than this server keeps job records; its record is deleted")]
@@ -212,6 +228,7 @@ impl ApiError {
         use ApiError::*;
         match self {
             Unauthorized => StatusCode::UNAUTHORIZED,
+            TokenInvalid | TokenExpired => StatusCode::FORBIDDEN,
             JobNotFound(_) | RouteNotFound(_) | ResultNotFound(_) => StatusCode::NOT_FOUND,
             MalformedJobId(_) | BadRequest(_) | BadQuery(_) => StatusCode::BAD_REQUEST,
             MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
@@ -246,6 +263,8 @@ impl ApiError {
         use ApiError::*;
         match self {
             Unauthorized => "unauthorized",
+            TokenInvalid => "token-invalid",
+            TokenExpired => "token-expired",
             JobNotFound(_) => "job-not-found",
             JobExpired(_) => "job-expired",
             MalformedJobId(_) => "malformed-job-id",
@@ -419,6 +438,22 @@ impl From<JobFailure> for ApiError {
             JobFailure::Internal(message) => ApiError::Internal(message),
             JobFailure::Crashed(message) => ApiError::PipelineCrashed(message),
             JobFailure::WorkersLost(attempts) => ApiError::WorkersLost(attempts),
+        }
+    }
+}
+
+impl From<DerivedError> for ApiError {
+    fn from(error: DerivedError) -> Self {
+        match error {
+            DerivedError::Refused(refusal) => refusal.into(),
+            DerivedError::Raster(error) => match error {
+                RasterError::ZeroWidth => ApiError::InvalidParams(error.to_string()),
+                RasterError::TooManyPixels { actual, limit, .. } => {
+                    ApiError::TooManyPixels { limit, actual }
+                }
+                RasterError::EmptyCanvas => ApiError::Internal(format!("stored scene: {error}")),
+            },
+            DerivedError::Scene(_) => ApiError::Internal(error.to_string()),
         }
     }
 }

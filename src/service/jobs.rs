@@ -14,12 +14,15 @@ use serde::Deserialize;
 
 use super::auth::{Client, Owner};
 use super::error::{ApiError, JobProblems, TooManyRequests, Unavailable};
-use super::model::{Idempotency, JobId, JobRecord, Problem, Status, is_job_id, new_job_id};
+use super::model::{
+    Idempotency, JobId, JobRecord, Problem, Status, is_job_id, new_job_id, now_ms, rfc3339,
+};
 use super::queue::Admission;
 use super::rate::RateState;
 use super::runner::JobEntry;
+use super::signed;
 use super::submit::{self, JsonSubmission, MultipartSubmission, UploadQuery};
-use super::view::{IdempotentReplayed, JobEvent, JobList, JobView};
+use super::view::{IdempotentReplayed, JobEvent, JobList, JobView, SignedUrls};
 use super::{AppState, Endpoint, endpoint};
 
 pub fn endpoints() -> Vec<Endpoint> {
@@ -62,7 +65,25 @@ fn view(state: &AppState, entry: &JobEntry) -> JobView {
     } else {
         None
     };
-    JobView::new(&record, placement)
+    with_signed(state, JobView::new(&record, placement))
+}
+
+/// `view` with its signed URLs, on a server with API keys (where only the job's owner sees
+/// the job).
+fn with_signed(state: &AppState, mut view: JobView) -> JobView {
+    if !state.key_ids.is_empty() {
+        let (token, expires) = state.signer.token(&view.id, now_ms());
+        view.signed = Some(SignedUrls {
+            results: view
+                .urls
+                .results
+                .as_ref()
+                .map(|results| results.signed(|url| signed::with_token(url, &token))),
+            expires_at: rfc3339(expires * 1000),
+            token,
+        });
+    }
+    view
 }
 
 const IDEMPOTENCY_KEY: &str = "idempotency-key";
@@ -76,8 +97,8 @@ const PREFER: &str = "prefer";
         A key holds for `--idempotency-window` (24 h) after its job was created; then it makes \
         a new job. \
         With `Prefer: wait=N` (RFC 7240) the answer waits up to N seconds (capped by the \
-        server's `--max-wait`, default 60) for the job to end: 200 with the ended job, else 202 \
-        with the job as it is (it goes on). Both carry `Preference-Applied: wait=N` with the \
+        server's `--max-wait`, default 60; a bare `Prefer: wait` waits that long) for the job to \
+        end: 200 with the ended job, else 202 with the job as it is (it goes on). Both carry `Preference-Applied: wait=N` with the \
         wait used. Other and malformed preferences are ignored. A JPEG that ends before its \
         end-of-image marker (cut short in transfer) is refused with 422 `truncated-image` \
         unless `accept_truncated=true` (its missing part then decodes as grey).",
@@ -85,7 +106,8 @@ const PREFER: &str = "prefer";
         UploadQuery,
         ("Idempotency-Key" = Option<String>, Header, min_length = 1, max_length = 255),
         ("Prefer" = Option<String>, Header, example = "wait=30",
-            description = "`wait=N`: seconds to wait for the job to end before answering."),
+            description = "`wait=N`: seconds to wait for the job to end before answering; `wait` alone: \
+                the server's `--max-wait`."),
         ("X-Client-Key" = Option<String>, Header, min_length = 1, max_length = 255,
             pattern = r"^[\x20-\x7e]*[\x21-\x7e][\x20-\x7e]*$",
             description = "Without API keys on the server: whose turn the job takes in the queue \
@@ -222,8 +244,9 @@ fn with_rate(mut response: Response, rate: Option<RateState>) -> Response {
     response
 }
 
-/// The `wait` preference of RFC 7240 (`Prefer: wait=N`, seconds), if sent and well formed;
-/// other preferences, and malformed ones, are ignored as the RFC asks.
+/// The `wait` preference of RFC 7240 (`Prefer: wait=N`, seconds), if sent and well formed; a
+/// bare `wait` (as other APIs document it) asks for as long as the server allows. Other
+/// preferences, and malformed ones, are ignored as the RFC asks.
 fn preferred_wait(headers: &HeaderMap) -> Option<Duration> {
     headers
         .get_all(PREFER)
@@ -231,13 +254,16 @@ fn preferred_wait(headers: &HeaderMap) -> Option<Duration> {
         .filter_map(|value| value.to_str().ok())
         .flat_map(|value| value.split(','))
         .find_map(|preference| {
-            let (name, value) = preference.split_once('=')?;
-            let value = value.split(';').next()?.trim().trim_matches('"');
-            (name.trim().eq_ignore_ascii_case("wait"))
-                .then(|| value.parse::<u64>().ok())
-                .flatten()
+            let preference = preference.split(';').next()?;
+            let (name, value) = preference.split_once('=').unwrap_or((preference, ""));
+            if !name.trim().eq_ignore_ascii_case("wait") {
+                return None;
+            }
+            match value.trim().trim_matches('"') {
+                "" => Some(Duration::MAX),
+                seconds => seconds.parse::<u64>().ok().map(Duration::from_secs),
+            }
         })
-        .map(Duration::from_secs)
 }
 
 /// Waits up to `wait` for the job to end: 200 with the ended job, else 202 with it as it is
@@ -372,7 +398,7 @@ async fn list(
     };
     let items: Vec<JobView> = page
         .iter()
-        .map(|(record, placement)| JobView::new(record, *placement))
+        .map(|(record, placement)| with_signed(&state, JobView::new(record, *placement)))
         .collect();
     Ok(Json(JobList { items, next_cursor }).into_response())
 }
@@ -502,8 +528,9 @@ async fn events(
                     None
                 };
                 let terminal = record.status.is_terminal();
-                let data = serde_json::to_string(&JobView::new(&record, placement))
-                    .expect("views serialise");
+                let data =
+                    serde_json::to_string(&with_signed(&state, JobView::new(&record, placement)))
+                        .expect("views serialise");
                 let digest = EventId::digest_of(&data);
                 if cursor.seen.take() == Some(digest) {
                     // The client has this state already (it resumed with its id).

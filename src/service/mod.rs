@@ -12,6 +12,7 @@
 
 mod auth;
 mod conn;
+mod derived;
 mod download;
 mod edits;
 mod error;
@@ -28,6 +29,7 @@ mod queue;
 mod rate;
 mod results;
 mod runner;
+mod signed;
 mod store;
 mod submit;
 mod telemetry;
@@ -57,7 +59,7 @@ use axum::middleware;
 use axum::routing::{MethodFilter, MethodRouter, on};
 use tokio::sync::watch;
 use tower_http::compression::CompressionLayer;
-use tower_http::cors::{AllowOrigin, Any, CorsLayer};
+use tower_http::cors::{AllowHeaders, AllowOrigin, Any, CorsLayer};
 use tower_http::request_id::{
     MakeRequestUuid, PropagateRequestIdLayer, RequestId, SetRequestIdLayer,
 };
@@ -90,6 +92,14 @@ pub struct Config {
     pub connections: ConnectionLimits,
     /// Accepted API keys; empty (the default) means no authentication.
     pub api_keys: Vec<String>,
+    /// Start without API keys on an address other hosts can reach (by default [`serve`]
+    /// refuses to: anyone who reaches it could read every job). Default false.
+    pub allow_anonymous: bool,
+    /// Signed result URLs: the secret and how long a token lasts.
+    pub signed_urls: SignedUrlConfig,
+    /// `covec serve`: serve `/healthz`, `/readyz` and `/metrics` on this address too, and
+    /// `/metrics` only there. Default none.
+    pub ops_addr: Option<SocketAddr>,
     /// Origins allowed by CORS; `*` allows any. Default none (no CORS headers).
     pub cors_origins: Vec<String>,
     /// How long running jobs may finish after a shutdown signal. Default 30 s.
@@ -112,10 +122,33 @@ impl Default for Config {
             limits: InputLimits::default(),
             connections: ConnectionLimits::default(),
             api_keys: Vec::new(),
+            allow_anonymous: false,
+            signed_urls: SignedUrlConfig::default(),
+            ops_addr: None,
             cors_origins: Vec::new(),
             shutdown_grace: Duration::from_secs(30),
             max_wait: Duration::from_secs(60),
             webhooks: WebhookConfig::default(),
+        }
+    }
+}
+
+/// Signed result URLs (`signed`).
+#[derive(Clone, Debug)]
+pub struct SignedUrlConfig {
+    /// The HMAC key; every API replica needs the same one. Default none: a random key made
+    /// at start (tokens then work on this process only, until it stops).
+    pub secret: Option<String>,
+    /// How long a token lasts (up to a quarter longer, so that polls a little apart get the
+    /// same URLs). Default 15 minutes.
+    pub lifetime: Duration,
+}
+
+impl Default for SignedUrlConfig {
+    fn default() -> Self {
+        Self {
+            secret: None,
+            lifetime: Duration::from_secs(15 * 60),
         }
     }
 }
@@ -131,8 +164,14 @@ pub struct AppState {
     /// Becomes true when the server begins to stop (ends event streams).
     shutdown: watch::Sender<bool>,
     max_wait: Duration,
-    /// Bounds the PNG renders running at once ([`results::PNG_RENDERS`]).
-    png_renders: Arc<tokio::sync::Semaphore>,
+    /// Bounds the renders of derived files running at once ([`derived::RENDERS`]).
+    renders: Arc<tokio::sync::Semaphore>,
+    /// Where those renders run: threads below the HTTP threads' priority.
+    render_pool: Arc<rayon::ThreadPool>,
+    /// Signs and checks signed result URLs.
+    signer: Arc<signed::UrlSigner>,
+    /// `/metrics` is served on the ops port, not here.
+    metrics_elsewhere: bool,
     webhooks: Arc<webhooks::Webhooks>,
     /// Per-key submission rates.
     rates: Arc<fair::SubmissionRates>,
@@ -166,6 +205,11 @@ pub enum ServeError {
     /// Starting `covec worker`'s job slots.
     #[error(transparent)]
     Workers(#[from] worker::WorkerError),
+    /// No API keys on an address other hosts can reach, without `allow_anonymous`.
+    #[error(
+        "refusing to serve {0} without API keys: anyone who reaches it could read every job; give --api-keys (COVEC_API_KEYS), listen on loopback, or pass --allow-anonymous (COVEC_ALLOW_ANONYMOUS=true)"
+    )]
+    Anonymous(SocketAddr),
 }
 
 impl AppState {
@@ -190,6 +234,10 @@ impl AppState {
         )?;
         let webhooks = webhooks::Webhooks::start(config.webhooks.clone(), queue.clone())?;
         webhooks.resume()?;
+        let signer = signed::UrlSigner::new(
+            config.signed_urls.secret.as_deref(),
+            config.signed_urls.lifetime,
+        )?;
         Ok(Self {
             webhooks,
             queue,
@@ -205,7 +253,10 @@ impl AppState {
             cors_origins: Arc::new(config.cors_origins.clone()),
             shutdown: watch::Sender::new(false),
             max_wait: config.max_wait,
-            png_renders: Arc::new(tokio::sync::Semaphore::new(results::PNG_RENDERS)),
+            renders: Arc::new(tokio::sync::Semaphore::new(derived::RENDERS)),
+            render_pool: Arc::new(derived::render_pool(config.queue.threads)?),
+            signer: Arc::new(signer),
+            metrics_elsewhere: config.ops_addr.is_some(),
             rates: Arc::new(fair::SubmissionRates::new(&config.queue.scheduling)),
         })
     }
@@ -314,9 +365,11 @@ fn cors_layer(origins: &[String]) -> CorsLayer {
     if origins.is_empty() {
         return CorsLayer::new();
     }
+    // Request headers mirrored, not `*`: the Fetch standard's wildcard does not cover
+    // `Authorization`, so a keyed page's preflight would fail.
     let layer = CorsLayer::new()
         .allow_methods([Method::GET, Method::POST, Method::DELETE])
-        .allow_headers(Any)
+        .allow_headers(AllowHeaders::mirror_request())
         .expose_headers(Any)
         .max_age(Duration::from_secs(3600));
     if origins.iter().any(|origin| origin == "*") {
@@ -337,6 +390,9 @@ pub async fn serve(
     config: Config,
     on_listening: impl FnOnce(SocketAddr),
 ) -> Result<(), ServeError> {
+    if config.api_keys.is_empty() && !config.allow_anonymous && !config.addr.ip().is_loopback() {
+        return Err(ServeError::Anonymous(config.addr));
+    }
     let state = AppState::open(&config)?;
     let listener = tokio::net::TcpListener::bind(config.addr)
         .await
@@ -359,6 +415,21 @@ pub async fn serve(
         config.queue.orphan_age,
     ));
     let metrics_upkeep = tokio::spawn(telemetry::upkeep(state.metrics.clone()));
+    let ops_port = match config.ops_addr {
+        Some(addr) => {
+            let listener = tokio::net::TcpListener::bind(addr)
+                .await
+                .map_err(|source| ServeError::Bind { addr, source })?;
+            tracing::info!(addr = %listener.local_addr()?, "probes and metrics");
+            Some(tokio::spawn(conn::accept(
+                listener,
+                ops::serve_app(state.clone()),
+                config.connections,
+                state.shutdown.subscribe(),
+            )))
+        }
+        None => None,
+    };
     let shutdown = state.shutdown.clone();
     let signal = tokio::spawn(async move {
         stop_signal().await;
@@ -380,6 +451,12 @@ pub async fn serve(
     let grace = config.shutdown_grace;
     let drain = tokio::task::spawn_blocking(move || queue.drain(grace));
     conn::close(connections, grace).await;
+    if let Some(Ok(connections)) = match ops_port {
+        Some(port) => Some(port.await),
+        None => None,
+    } {
+        conn::close(connections, Duration::from_secs(1)).await;
+    }
     drain.await.map_err(std::io::Error::other)?;
     tracing::info!("stopped");
     Ok(())

@@ -37,6 +37,7 @@ use crate::edit::ReferenceParams;
         results::svg, results::layer, results::scene, results::png, results::pdf,
         results::previews, results::preview,
         edits::create, edits::get, edits::edit_svg, edits::edit_scene, edits::edit_preview,
+        edits::edit_pdf, edits::edit_png,
         ops::healthz, ops::readyz, ops::metrics, limits::limits,
     ),
     // Schemas only referenced from hand-built ones (headers, multipart forms).
@@ -90,7 +91,14 @@ const JOB_OPERATIONS: [&str; 12] = [
 ];
 
 /// Every operation on an edit, reachable from the edit `POST /v1/jobs/{id}/edits` answers.
-const EDIT_OPERATIONS: [&str; 4] = ["getEdit", "getEditSvg", "getEditScene", "getEditPreview"];
+const EDIT_OPERATIONS: [&str; 6] = [
+    "getEdit",
+    "getEditSvg",
+    "getEditScene",
+    "getEditPreview",
+    "getEditPdf",
+    "getEditPng",
+];
 
 /// What the attributes cannot say.
 struct Contract;
@@ -98,6 +106,7 @@ struct Contract;
 impl Modify for Contract {
     fn modify(&self, document: &mut Document) {
         downloads(document);
+        signed_urls(document);
         request_ids(document);
         rate_limits(document);
         document.webhooks = Some(webhooks());
@@ -192,7 +201,7 @@ impl Modify for Contract {
 
 /// Operations that answer with a file ([`super::download::Download`]): a strong `ETag`,
 /// `Cache-Control`, a `Content-Disposition` download name, and 304 for `If-None-Match`.
-const FILE_OPERATIONS: [&str; 10] = [
+const FILE_OPERATIONS: [&str; 12] = [
     "getSvg",
     "getLayerSvg",
     "getScene",
@@ -203,6 +212,24 @@ const FILE_OPERATIONS: [&str; 10] = [
     "getEditSvg",
     "getEditScene",
     "getEditPreview",
+    "getEditPdf",
+    "getEditPng",
+];
+
+/// The file operations a signed URL's token opens ([`super::signed`]): every one but the
+/// edit's record.
+const SIGNED_OPERATIONS: [&str; 11] = [
+    "getSvg",
+    "getLayerSvg",
+    "getScene",
+    "getPng",
+    "getPdf",
+    "getPreview",
+    "getEditSvg",
+    "getEditScene",
+    "getEditPreview",
+    "getEditPdf",
+    "getEditPng",
 ];
 
 /// Every operation of the document.
@@ -284,6 +311,34 @@ fn downloads(document: &mut Document) {
             .responses
             .responses
             .insert("304".into(), not_modified.build().into());
+    }
+}
+
+/// The `token` query parameter of the operations a signed URL opens.
+fn signed_urls(document: &mut Document) {
+    for operation in operations(document) {
+        let signed = operation
+            .operation_id
+            .as_deref()
+            .is_some_and(|id| SIGNED_OPERATIONS.contains(&id));
+        if !signed {
+            continue;
+        }
+        operation.parameters.get_or_insert_with(Vec::new).push(
+            ParameterBuilder::new()
+                .name(super::signed::TOKEN_PARAM)
+                .parameter_in(ParameterIn::Query)
+                .required(Required::False)
+                .schema(Some(ObjectBuilder::new().schema_type(Type::String)))
+                .description(Some(
+                    "On a server with API keys, instead of `Authorization`: the job's \
+                     `signed.token`, which opens this job's files until it expires (403 \
+                     `token-expired`; a token of another job, or not a token: 403 \
+                     `token-invalid`). Ignored on a server without keys.",
+                ))
+                .build()
+                .into(),
+        );
     }
 }
 
@@ -492,7 +547,8 @@ Server-Sent Events (`GET /v1/jobs/{id}/events`), then fetch the layered SVG, the
 SVGs, the JSON scene, a PNG of any width and the stage previews.
 
 Every error is an RFC 9457 problem (`application/problem+json`) with a stable `code`:
-`unauthorized`, `job-not-found`, `job-expired` (410: the job ended longer ago than the
+`unauthorized`, `token-invalid` and `token-expired` (403: a signed URL's token that is not
+this job's, or has expired), `job-not-found`, `job-expired` (410: the job ended longer ago than the
 record retention and its record is deleted; an id that never existed is `job-not-found`),
 `malformed-job-id`, `route-not-found`, `method-not-allowed`,
 `result-not-found`, `unsupported-media-type`, `body-too-large`, `too-many-pixels`,
@@ -526,8 +582,9 @@ allow-list (`--webhook-hosts`, none by default): others are refused with 422
 `webhook-host-not-allowed`.
 
 With API keys configured (`--api-keys`), every `/v1` request needs
-`Authorization: Bearer <key>`, and a job is visible only to the key that created it (others
-get 404).
+`Authorization: Bearer <key>` (the scheme in any case), and a job is visible only to the key
+that created it (others get 404). A job's files also open with the short-lived token of its
+`signed` member (`?token=…`), for browsers' `<img>` and downloads, which send no header.
 
 Fair scheduling: jobs take turns by key (the API key; without keys the `X-Client-Key`
 header, or one anonymous key for requests without it). The next job to run is chosen among

@@ -11,6 +11,8 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 
+use super::error::ApiError;
+use super::model::Problem;
 use super::store::StoreError;
 use super::telemetry::{Metrics, QueueGauges};
 use super::worker::Workers;
@@ -43,6 +45,20 @@ pub fn worker_app(workers: &Arc<Workers>) -> Router {
         .route("/readyz", get(ready))
         .route("/metrics", get(metrics))
         .with_state(Arc::clone(workers))
+}
+
+/// `covec serve --ops-addr`: the same `/healthz`, `/readyz` and `/metrics` as on the API port,
+/// on a port of their own for probes and scraping, which then serves `/metrics` alone (an
+/// Ingress or load balancer in front of the API port does not expose it).
+pub fn serve_app(state: AppState) -> Router {
+    async fn metrics(State(state): State<AppState>) -> Response {
+        queue_metrics(&state)
+    }
+    Router::new()
+        .route(LIVENESS_PATH, get(healthz))
+        .route("/readyz", get(readyz))
+        .route("/metrics", get(metrics))
+        .with_state(state)
 }
 
 /// Liveness: the process answers.
@@ -137,12 +153,24 @@ pub async fn readiness(
     description = "`covec_jobs_queued`, `covec_jobs_running`, `covec_workers` (gauges), \
         `covec_job_duration_seconds{outcome}` (histogram), \
         `covec_http_requests_total{method,route,status}` (counter), \
-        `covec_http_request_duration_seconds{method,route}` (histogram).",
+        `covec_http_request_duration_seconds{method,route}` (histogram). With `--ops-addr` \
+        it is served on that port instead, and this one answers 404 `route-not-found`.",
     security(()),
     responses((status = 200, description = "Text exposition format 0.0.4.", body = String,
-        content_type = "text/plain")),
+        content_type = "text/plain"),
+        (status = 404, response = Problem)),
 )]
-async fn metrics(State(state): State<AppState>) -> Response {
+async fn metrics(State(state): State<AppState>) -> Result<Response, ApiError> {
+    if state.metrics_elsewhere {
+        return Err(ApiError::RouteNotFound(
+            "/metrics (served on the --ops-addr port)".into(),
+        ));
+    }
+    Ok(queue_metrics(&state))
+}
+
+/// The API process's metrics, with the queue's gauges.
+fn queue_metrics(state: &AppState) -> Response {
     metrics_text(
         &state.metrics,
         Some(state.queue.gauges()),

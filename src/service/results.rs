@@ -13,13 +13,14 @@ use super::auth::Owner;
 use utoipa::openapi::schema::{KnownFormat, SchemaFormat};
 use utoipa::openapi::{ObjectBuilder, RefOr, Schema, Type};
 
+use super::derived::{self, Derived};
 use super::download::{Download, etag_of, filename};
-use super::error::{ApiError, JobProblems, ResultProblems};
+use super::error::{ApiError, FileProblems, JobProblems};
 use super::jobs::find;
 use super::model::{JobId, JobRecord, Problem, Status};
 use super::queue::Queue;
 use super::{AppState, Endpoint, endpoint};
-use crate::output::{self, FileKind, RasterError};
+use crate::output::FileKind;
 use crate::scene::{LayerKind, Scene};
 
 pub fn endpoints() -> Vec<Endpoint> {
@@ -161,13 +162,14 @@ pub(super) async fn artefact(
 /// The query of `GET /v1/jobs/{id}/svg`.
 #[derive(serde::Deserialize, utoipa::IntoParams)]
 #[into_params(parameter_in = Query)]
-struct SvgQuery {
+pub(super) struct SvgQuery {
     /// `true`: the same picture as plain opaque paths in painter's order (no blend modes,
-    /// opacities, filters or images), for programs without `multiply` or `plus-lighter`; made
-    /// on request from the stored scene. Anything but `true`/`false`: 400 `bad-query`.
+    /// opacities, filters or images), for programs without `multiply` or `plus-lighter`; drawn
+    /// from the stored scene on the first request, then stored. Anything but `true`/`false`:
+    /// 400 `bad-query`.
     #[serde(default)]
     #[param(default = false)]
-    flatten: bool,
+    pub flatten: bool,
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/svg", tag = "results", operation_id = "getSvg",
@@ -177,7 +179,7 @@ struct SvgQuery {
         (status = 200, description = "The SVG (layered - albedo, shade with \
             `mix-blend-mode:multiply`, light with `plus-lighter` - or flattened).",
             body = Binary, content_type = "image/svg+xml"),
-        ResultProblems,
+        FileProblems,
     ),
 )]
 async fn svg(
@@ -189,11 +191,24 @@ async fn svg(
 ) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
     let record = succeeded(&state, &owner, &id).await?;
+    let files = SceneFiles::of_job(&record);
     if query.flatten {
-        derived(&state, &headers, &record, Derived::Flat(FileKind::FlatSvg)).await
+        derived_file(
+            &state,
+            &headers,
+            &record,
+            &files,
+            Derived::Flat(FileKind::FlatSvg),
+        )
+        .await
     } else {
-        let file = SceneFiles::of_job(&record).stored(FileKind::LayeredSvg);
-        artefact(&state, &headers, &record, file).await
+        artefact(
+            &state,
+            &headers,
+            &record,
+            files.stored(FileKind::LayeredSvg),
+        )
+        .await
     }
 }
 
@@ -207,12 +222,12 @@ async fn succeeded(state: &AppState, owner: &Owner, id: &str) -> Result<JobRecor
 #[utoipa::path(get, path = "/v1/jobs/{id}/pdf", tag = "results", operation_id = "getPdf",
     summary = "The result as a vector PDF of the flattened picture",
     description = "One page the original image's size (96 px per inch), the flattened SVG's \
-        opaque regions as filled paths (no blend modes needed). Made on request from the stored \
-        scene.",
+        opaque regions as filled paths (no blend modes needed). Drawn from the stored scene on \
+        the first request, then stored and served as a file.",
     params(("id" = JobId, Path)),
     responses(
         (status = 200, description = "The PDF.", body = Binary, content_type = "application/pdf"),
-        ResultProblems,
+        FileProblems,
         (status = 500, response = Problem),
     ),
 )]
@@ -223,89 +238,79 @@ async fn pdf(
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let record = succeeded(&state, &owner, &id).await?;
-    derived(&state, &headers, &record, Derived::Flat(FileKind::Pdf)).await
+    let files = SceneFiles::of_job(&record);
+    derived_file(
+        &state,
+        &headers,
+        &record,
+        &files,
+        Derived::Flat(FileKind::Pdf),
+    )
+    .await
 }
 
-/// A file made from the stored scene on request.
-#[derive(Clone, Copy)]
-enum Derived {
-    /// The flattened SVG or the PDF.
-    Flat(FileKind),
-    /// A PNG this wide (default: the original width).
-    Png(Option<u32>),
-}
-
-impl Derived {
-    /// What the file's bytes depend on besides the scene: its kind, its width, and the covec
-    /// version that draws it.
-    fn key(self) -> String {
-        let kind = match self {
-            Derived::Flat(kind) => kind.name(),
-            Derived::Png(width) => format!("png:{width:?}"),
-        };
-        format!("{kind}/{}", env!("CARGO_PKG_VERSION"))
-    }
-}
-
-/// A file made from the stored scene on request, off the async workers and one at a time with
-/// the other renders (a flattening's boolean operations, or a large PNG, take a CPU for a
-/// while). Its validator comes from the scene's bytes, so a client holding the file gets a 304
-/// before anything is drawn.
-async fn derived(
+/// A file derived from a stored scene (a job's or an edit's, `files`): served from storage once
+/// drawn ([`derived`]), else drawn off the async workers, on the render pool and one at a time
+/// with the other renders, and stored. Its validator comes from the scene's bytes and the
+/// file's key, so a client holding the file gets a 304 before anything is read or drawn.
+pub(super) async fn derived_file(
     state: &AppState,
     request: &HeaderMap,
     record: &JobRecord,
+    files: &SceneFiles,
     file: Derived,
 ) -> Result<Response, ApiError> {
-    let queue = state.queue.clone();
-    let id = record.id.clone();
-    let scene = tokio::task::spawn_blocking(move || {
-        let name = FileKind::SceneJson.name();
-        queue
-            .read_result(&id, &name)?
-            .ok_or(ApiError::ResultNotFound(name))
+    let (queue, id, prefix) = (state.queue.clone(), record.id.clone(), files.prefix.clone());
+    let scene = blocking(move || {
+        derived::scene_bytes(&queue, &id, &prefix)?
+            .ok_or_else(|| ApiError::ResultNotFound(format!("{prefix}scene.json")))
     })
-    .await
-    .map_err(|error| ApiError::Internal(error.to_string()))??;
-    let (media_type, suffix) = match file {
-        Derived::Flat(kind) => (kind.media_type(), kind.download_suffix()),
-        Derived::Png(_) => ("image/png", ".png".to_owned()),
-    };
+    .await?;
     let etag = etag_of(&[&scene, file.key().as_bytes()]);
-    let download = Download::of(record, etag, filename(record, &suffix), media_type);
+    let filename = format!("{}{}", files.stem, file.download_suffix());
+    let download = Download::of(record, etag, filename, file.media_type());
     if download.is_cached_by(request) {
         return Ok(download.respond(request, Vec::new));
     }
-    let _slot = state
-        .png_renders
+    if let Some(bytes) = stored_copy(state, record, files, file).await? {
+        return Ok(download.respond(request, || bytes));
+    }
+    let _turn = state
+        .renders
         .acquire()
         .await
         .map_err(|error| ApiError::Internal(error.to_string()))?;
-    let max_pixels = state.limits.max_pixels;
-    let bytes = tokio::task::spawn_blocking(move || {
-        let scene: Scene = serde_json::from_slice(&scene)
-            .map_err(|e| ApiError::Internal(format!("stored scene: {e}")))?;
-        match file {
-            Derived::Flat(kind) => Ok(output::artefacts(&scene, &[kind])
-                .pop()
-                .expect("one file asked for")
-                .bytes),
-            Derived::Png(width) => {
-                output::png(&scene, width, max_pixels).map_err(|error| match error {
-                    RasterError::ZeroWidth => ApiError::InvalidParams(error.to_string()),
-                    RasterError::TooManyPixels { actual, limit, .. } => {
-                        ApiError::TooManyPixels { limit, actual }
-                    }
-                    RasterError::EmptyCanvas => {
-                        ApiError::Internal(format!("stored scene: {error}"))
-                    }
-                })
-            }
-        }
+    // Drawn and stored by another request while this one waited for its turn?
+    if let Some(bytes) = stored_copy(state, record, files, file).await? {
+        return Ok(download.respond(request, || bytes));
+    }
+    let (queue, id, prefix) = (state.queue.clone(), record.id.clone(), files.prefix.clone());
+    let (pool, max_pixels) = (state.render_pool.clone(), state.limits.max_pixels);
+    let bytes = blocking(move || {
+        Ok(pool.install(|| derived::render(&queue, &id, &prefix, &scene, file, max_pixels))?)
     })
-    .await
-    .map_err(|error| ApiError::Internal(error.to_string()))??;
+    .await?;
     Ok(download.respond(request, || bytes))
+}
+
+/// The stored copy of `file` derived from `files`' scene, if a whole one is there.
+async fn stored_copy(
+    state: &AppState,
+    record: &JobRecord,
+    files: &SceneFiles,
+    file: Derived,
+) -> Result<Option<Vec<u8>>, ApiError> {
+    let (queue, id, prefix) = (state.queue.clone(), record.id.clone(), files.prefix.clone());
+    blocking(move || Ok(derived::stored(&queue, &id, &prefix, file)?)).await
+}
+
+/// Runs blocking `work` off the async workers.
+async fn blocking<T: Send + 'static>(
+    work: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    tokio::task::spawn_blocking(work)
+        .await
+        .map_err(|error| ApiError::Internal(error.to_string()))?
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/layers/{file}", tag = "results",
@@ -313,7 +318,7 @@ async fn derived(
     params(("id" = JobId, Path), ("file" = inline(LayerFile), Path)),
     responses(
         (status = 200, description = "The layer's SVG.", body = Binary, content_type = "image/svg+xml"),
-        ResultProblems,
+        FileProblems,
     ),
 )]
 async fn layer(
@@ -342,7 +347,7 @@ async fn layer(
     params(("id" = JobId, Path)),
     responses(
         (status = 200, description = "The scene.", body = SceneJson),
-        ResultProblems,
+        FileProblems,
     ),
 )]
 async fn scene(
@@ -356,29 +361,33 @@ async fn scene(
     artefact(&state, &headers, &record, file).await
 }
 
-/// PNG renders at once: one at the pixel limit holds four f32 RGB images (12 bytes a pixel
-/// each, 768 MB at the default 16 Mpx), so concurrent requests wait rather than add up.
-pub(super) const PNG_RENDERS: usize = 1;
-
 /// The query of `GET /v1/jobs/{id}/png`; `width` is read as text so that a bad value is a 422
 /// problem naming it.
 #[derive(serde::Deserialize)]
-struct PngQuery {
+pub(super) struct PngQuery {
     width: Option<String>,
+}
+
+impl PngQuery {
+    /// The width asked for, if any.
+    pub fn width(&self) -> Result<Option<u32>, ApiError> {
+        self.width.as_deref().map(parse_width).transpose()
+    }
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/png", tag = "results", operation_id = "getPng",
     summary = "The result as a PNG of any width, drawn by covec's own renderer",
-    description = "The picture covec optimised (albedo × shade + light), rendered on request \
-        with the geometry scaled to `width`; no viewer's blend modes involved. Equal to \
-        `covec render scene.json --width N` byte for byte. One render runs at a time.",
+    description = "The picture covec optimised (albedo × shade + light), drawn with the \
+        geometry scaled to `width`; no viewer's blend modes involved. Equal to \
+        `covec render scene.json --width N` byte for byte. Drawn on the first request for a \
+        width (one render at a time per server), then stored and served as a file.",
     params(("id" = JobId, Path), ("width" = Option<u64>, Query, minimum = 1, maximum = 4294967295.0,
         description = "Width in pixels (default: the original image's width); the height keeps \
             the aspect ratio. 0, negative or non-numeric: 422 `invalid-params`; width × height \
             over `--max-pixels`: 413 `too-many-pixels`.")),
     responses(
         (status = 200, description = "The PNG.", body = Binary, content_type = "image/png"),
-        ResultProblems,
+        FileProblems,
         (status = 413, response = Problem),
         (status = 422, response = Problem),
         (status = 500, response = Problem),
@@ -392,9 +401,10 @@ async fn png(
     query: Result<Query<PngQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
-    let width = query.width.as_deref().map(parse_width).transpose()?;
+    let width = query.width()?;
     let record = succeeded(&state, &owner, &id).await?;
-    derived(&state, &headers, &record, Derived::Png(width)).await
+    let files = SceneFiles::of_job(&record);
+    derived_file(&state, &headers, &record, &files, Derived::Png(width)).await
 }
 
 /// A `width` query value: a whole number of pixels (0 is refused with the raster's own rule).
@@ -452,6 +462,7 @@ async fn previews(
     responses(
         (status = 200, description = "The preview image.", body = Binary, content_type = "image/png"),
         JobProblems,
+        (status = 403, response = Problem),
     ),
 )]
 async fn preview(

@@ -290,7 +290,7 @@ pub fn job_pool(
 /// Pipeline threads run at nice 10, so the HTTP threads win the CPU whenever both want it and
 /// polls stay fast while every core is busy with jobs. (On Linux `setpriority` with `who = 0`
 /// applies to the calling thread only.) Best effort: failure leaves the default priority.
-fn lower_thread_priority() {
+pub(super) fn lower_thread_priority() {
     #[cfg(target_os = "linux")]
     // SAFETY: plain syscall on the current thread; no memory is shared.
     unsafe {

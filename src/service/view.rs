@@ -75,6 +75,30 @@ pub struct JobView {
     #[schema(value_type = String, required = false)]
     pub input_name: Option<String>,
     pub urls: Urls,
+    /// Present on a server with API keys, to the key that owns the job: a token that opens
+    /// this job's files without the `Authorization` header, for a browser's `<img>`, `<a
+    /// download>` and other requests that cannot send it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = SignedUrls, required = false)]
+    pub signed: Option<SignedUrls>,
+}
+
+/// Signed URLs of a job's files: each opens that file, and nothing else, without a key until
+/// `expires_at` (then 403 `token-expired`; another job's file: 403 `token-invalid`).
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SignedUrls {
+    /// Add it as `token=<token>` to the query of any of this job's file URLs: the results,
+    /// layers, stage previews (`/previews/<name>.png`) and an edit's files (`svg`, `pdf`, `png`,
+    /// `scene.json`, `preview.png`). Not the job resource, its events or an edit's record.
+    pub token: String,
+    /// When the token stops working (15 minutes or more after it was handed out, by
+    /// `--signed-url-ttl`); ask for the job again for a fresh one.
+    #[schema(format = DateTime)]
+    pub expires_at: String,
+    /// The result URLs with the token, once the job has succeeded.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = ResultUrls)]
+    pub results: Option<ResultUrls>,
 }
 
 /// One page of `GET /v1/jobs`.
@@ -260,20 +284,40 @@ pub struct ResultUrls {
     pub light: String,
 }
 
+impl ResultUrls {
+    fn of(base: &str) -> Self {
+        Self {
+            svg: format!("{base}/svg"),
+            flat_svg: format!("{base}/svg?flatten=true"),
+            pdf: format!("{base}/pdf"),
+            png: format!("{base}/png"),
+            scene: format!("{base}/scene.json"),
+            albedo: format!("{base}/layers/albedo.svg"),
+            shade: format!("{base}/layers/shade.svg"),
+            light: format!("{base}/layers/light.svg"),
+        }
+    }
+
+    /// Each URL through `sign`.
+    pub fn signed(&self, sign: impl Fn(&str) -> String) -> Self {
+        Self {
+            svg: sign(&self.svg),
+            flat_svg: sign(&self.flat_svg),
+            pdf: sign(&self.pdf),
+            png: sign(&self.png),
+            scene: sign(&self.scene),
+            albedo: sign(&self.albedo),
+            shade: sign(&self.shade),
+            light: sign(&self.light),
+        }
+    }
+}
+
 impl JobView {
     pub fn new(record: &JobRecord, placement: Option<Placement>) -> Self {
         let base = format!("/v1/jobs/{}", record.id);
-        let results =
-            (record.status == Status::Succeeded && !record.data_removed).then(|| ResultUrls {
-                svg: format!("{base}/svg"),
-                flat_svg: format!("{base}/svg?flatten=true"),
-                pdf: format!("{base}/pdf"),
-                png: format!("{base}/png"),
-                scene: format!("{base}/scene.json"),
-                albedo: format!("{base}/layers/albedo.svg"),
-                shade: format!("{base}/layers/shade.svg"),
-                light: format!("{base}/layers/light.svg"),
-            });
+        let results = (record.status == Status::Succeeded && !record.data_removed)
+            .then(|| ResultUrls::of(&base));
         Self {
             id: record.id.clone(),
             status: record.status,
@@ -305,6 +349,7 @@ impl JobView {
                 results,
                 job: base,
             },
+            signed: None,
         }
     }
 }

@@ -825,6 +825,9 @@ async function showResult(item) {
         svgUrl,
         svgText,
         sceneUrl: jobUrl(job, "scene", "/scene.json"),
+        flatUrl: jobUrl(job, "flat_svg", "/svg?flatten=true"),
+        pdfUrl: jobUrl(job, "pdf", "/pdf"),
+        pngUrl: jobUrl(job, "png", "/png"),
         layerUrls: Object.fromEntries(LAYERS.map((layer) => [layer, jobUrl(job, layer, `/layers/${layer}.svg`)])),
         changed: [],
       });
@@ -1030,6 +1033,9 @@ async function applyEdit(makeBody) {
       svgUrl,
       svgText,
       sceneUrl: edit.urls?.scene || jobPath(current.job, `${editPath}/scene.json`),
+      flatUrl: edit.urls?.flat_svg || jobPath(current.job, `${editPath}/svg?flatten=true`),
+      pdfUrl: edit.urls?.pdf || jobPath(current.job, `${editPath}/pdf`),
+      pngUrl: edit.urls?.png || jobPath(current.job, `${editPath}/png`),
       layerUrls: edit.urls?.layers || null,
       changed: edit.changed || [],
     });
@@ -1119,7 +1125,8 @@ function updatePngLink() {
   try {
     const width = pngWidth();
     showError(ui.pngError, "");
-    link.href = jobPath(session.job, width ? `/png?width=${width}` : "/png");
+    const url = session.versions.at(-1).pngUrl;
+    link.href = width ? `${url}${url.includes("?") ? "&" : "?"}width=${width}` : url;
     link.removeAttribute("aria-disabled");
   } catch (error) {
     showError(ui.pngError, error.message);
@@ -1139,13 +1146,13 @@ function fillDownloads() {
     ["svg", version.svgUrl, `${versionStem}.svg`, version.id ? "Layered SVG (with your colours)" : "Layered SVG"],
     ["scene", version.sceneUrl, `${versionStem}.json`, "Scene JSON"],
   ];
-  // The job's picture for programs without the SVG's blend modes, and at a fixed size; the
-  // service makes these from the job's scene, not an edit's.
-  const before = version.id ? " (before recolouring)" : "";
+  // The picture shown (with its recolouring) for programs without the SVG's blend modes, and
+  // at a fixed size.
+  const yours = version.id ? " (with your colours)" : "";
   links.push(
-    ["flat", jobPath(session.job, "/svg?flatten=true"), `${stem}-flat.svg`, `Flattened SVG${before}`],
-    ["pdf", jobPath(session.job, "/pdf"), `${stem}.pdf`, `PDF${before}`],
-    ["png", jobPath(session.job, "/png"), `${stem}.png`, `PNG${before}`],
+    ["flat", version.flatUrl, `${versionStem}-flat.svg`, `Flattened SVG${yours}`],
+    ["pdf", version.pdfUrl, `${versionStem}.pdf`, `PDF${yours}`],
+    ["png", version.pngUrl, `${versionStem}.png`, `PNG${yours}`],
   );
   // The job's layer files stay current for each layer no edit since the original changed (a
   // reference edit may recolour an object's own shade and light paths with its albedo).

@@ -24,6 +24,7 @@ import os from "node:os";
 import path from "node:path";
 import { fileURLToPath } from "node:url";
 import { parseArgs } from "node:util";
+import zlib from "node:zlib";
 
 import { BROWSERS, launch } from "./driver.mjs";
 
@@ -191,6 +192,26 @@ async function apiBytes(base, url, headers = {}) {
   return Buffer.from(await response.arrayBuffer());
 }
 
+/** The fill colours (`r g b rg`, as #rrggbb hex without #) of a PDF's deflated content streams. */
+function pdfFills(pdf) {
+  const colours = new Set();
+  const text = pdf.toString("latin1");
+  for (const match of text.matchAll(/stream\r?\n/g)) {
+    const start = match.index + match[0].length;
+    const end = text.indexOf("endstream", start);
+    let content;
+    try {
+      content = zlib.inflateSync(pdf.subarray(start, end)).toString("latin1");
+    } catch {
+      continue;
+    }
+    for (const [, r, g, b] of content.matchAll(/([\d.]+) ([\d.]+) ([\d.]+) rg/g)) {
+      colours.add([r, g, b].map((v) => Math.round(Number(v) * 255).toString(16).padStart(2, "0")).join(""));
+    }
+  }
+  return colours;
+}
+
 // ------------------------------------------------------------------ pixels
 
 /**
@@ -248,6 +269,25 @@ class Pixels {
       },
       { a: pngA.toString("base64"), b: pngB.toString("base64"), points },
     );
+  }
+
+  /** The SVG drawn by this browser `width` pixels wide (its aspect kept), as a PNG. */
+  async svgToPng(svgBytes, width) {
+    const b64 = await this.page.evaluate(
+      async ({ svg, width }) => {
+        const image = new Image();
+        image.src = `data:image/svg+xml;base64,${svg}`;
+        await image.decode();
+        const height = Math.round((image.naturalHeight * width) / image.naturalWidth);
+        const canvas = document.createElement("canvas");
+        canvas.width = width;
+        canvas.height = height;
+        canvas.getContext("2d").drawImage(image, 0, 0, width, height);
+        return canvas.toDataURL("image/png").split(",")[1];
+      },
+      { svg: svgBytes.toString("base64"), width },
+    );
+    return Buffer.from(b64, "base64");
   }
 
   async size(png) {
@@ -699,6 +739,49 @@ async function run(context, base) {
     const editSvg = await apiBytes(base, editSvgUrl);
     check((await page.locator("#svg-host").getAttribute("data-sha256")) === sha256(editSvg), "page shows other bytes than the edit's SVG");
     await checkLightingKept(jobSvg, editSvg, edit.changed);
+  }, { skip_because: noEditsApi });
+
+  await step("the recoloured picture downloads as flattened SVG, PDF and PNG, with the new colours", async () => {
+    const version = await page.locator("#svg-host").getAttribute("data-version");
+    check(version && version !== "original", `no edit shown (version ${version}): the recolour did not happen`);
+    const editPath = `/v1/jobs/${job.id}/edits/${version}`;
+    const files = {};
+    for (const [kind, label, url, name] of [
+      ["flat", "Flattened SVG (with your colours)", `${editPath}/svg?flatten=true`, `web_astronaut-${version}-flat.svg`],
+      ["pdf", "PDF (with your colours)", `${editPath}/pdf`, `web_astronaut-${version}.pdf`],
+      ["png", "PNG (with your colours)", `${editPath}/png`, `web_astronaut-${version}.png`],
+    ]) {
+      const link = page.locator(`#downloads a[data-kind=${kind}]`);
+      check((await link.textContent()) === label, `the ${kind} link says "${await link.textContent()}"`);
+      const saved = await downloadFrom(link);
+      const api = await apiBytes(base, url);
+      check(saved.bytes.equals(api), `${label}: downloaded ${saved.bytes.length} bytes differ from GET ${url} (${api.length} bytes)`);
+      check(saved.name === name, `${label} was saved as ${saved.name}, not ${name}`);
+      files[kind] = saved.bytes;
+    }
+    // The new colours, where the recoloured path is: the PNG and the flattened SVG (drawn by
+    // this browser) at the page's size, against the job's own, under the path's points.
+    const width = await svg.evaluate((e) => e.clientWidth);
+    const jobPng = await apiBytes(base, `/v1/jobs/${job.id}/png?width=${width}`);
+    const editPng = await apiBytes(base, `${editPath}/png?width=${width}`);
+    const png = await pixels.diff(jobPng, editPng, target.points);
+    check(!png.error && png.mean > 10, `the edit's PNG under ${target.id}: ${JSON.stringify(png)}`);
+    const jobFlat = await pixels.svgToPng(await apiBytes(base, `/v1/jobs/${job.id}/svg?flatten=true`), width);
+    const flat = await pixels.diff(jobFlat, await pixels.svgToPng(files.flat, width), target.points);
+    check(!flat.error && flat.mean > 10, `the edit's flattened SVG under ${target.id}: ${JSON.stringify(flat)}`);
+    // The PDF fills exactly the flattened SVG's colours (one flattening), which are not the job's.
+    const pdfColours = pdfFills(files.pdf);
+    const svgColours = new Set([...files.flat.toString("utf8").matchAll(/fill="#([0-9a-f]{6})"/g)].map((m) => m[1]));
+    const off = [...pdfColours].filter((c) => !svgColours.has(c));
+    check(pdfColours.size > 0 && off.length === 0, `the edit's PDF fills ${off.length} colours its flattened SVG has not: ${off.slice(0, 5)}`);
+    const jobPdfColours = pdfFills(await apiBytes(base, `/v1/jobs/${job.id}/pdf`));
+    check([...pdfColours].some((c) => !jobPdfColours.has(c)), "the edit's PDF has only the job's colours");
+    facts.edit_downloads = {
+      bytes: Object.fromEntries(Object.entries(files).map(([kind, bytes]) => [kind, bytes.length])),
+      png_mean_change_under_path: +png.mean.toFixed(1),
+      flat_svg_mean_change_under_path: +flat.mean.toFixed(1),
+      pdf_colours: pdfColours.size,
+    };
   }, { skip_because: noEditsApi });
 
   await step("undo brings the original back", async () => {

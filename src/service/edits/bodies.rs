@@ -189,7 +189,14 @@ pub(super) struct ChangedView {
 pub(super) struct EditUrls {
     #[serde(rename = "self")]
     pub this: String,
+    /// The edited layered SVG.
     pub svg: String,
+    /// The edited picture as plain opaque paths.
+    pub flat_svg: String,
+    /// A vector PDF of the flattened edited picture.
+    pub pdf: String,
+    /// A PNG of the edited picture at the original width (add `?width=N` for another).
+    pub png: String,
     pub scene: String,
     pub preview: String,
 }

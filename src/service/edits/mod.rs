@@ -1,7 +1,8 @@
 //! Edits of a finished job: recolour albedo paths while the shade and light layers keep the
 //! lighting. An edit is cheap (no optimisation), so it runs within the request, on
 //! the blocking pool, and is stored under the job: `edits/<edit id>/{edit.json, scene.json,
-//! result.svg, preview.png}`. An edit may build on an earlier edit (`base`), which gives clients
+//! result.svg, preview.png}`, with its flattened SVG, PDF and PNGs drawn on first request
+//! ([`super::derived`]). An edit may build on an earlier edit (`base`), which gives clients
 //! an undo history for free.
 
 mod bodies;
@@ -9,12 +10,14 @@ mod bodies;
 use std::collections::BTreeMap;
 
 use super::auth::Owner;
-use super::error::{ApiError, ResultProblems, Unavailable};
+use super::derived::Derived;
+use super::error::{ApiError, FileProblems, ResultProblems, Unavailable};
 use super::inputs::{InputError, InputKind};
 use super::jobs::find;
 use super::model::{JobId, JobRecord, Problem};
 use super::results::{
-    Binary, SceneFiles, SceneJson, Stored, artefact, require_success, stored_scene,
+    Binary, PngQuery, SceneFiles, SceneJson, Stored, SvgQuery, artefact, derived_file,
+    require_success, stored_scene,
 };
 use super::store::digest;
 use super::submit::{UploadQuery, read_body};
@@ -24,7 +27,8 @@ use crate::imageio::{self, resize_rgb};
 use crate::output::{self, EDIT_FILES, FileKind};
 use crate::scene::PathId;
 use crate::svg;
-use axum::extract::{FromRequest, Multipart, Path, Request, State};
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{FromRequest, Multipart, Path, Query, Request, State};
 use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
@@ -48,6 +52,8 @@ pub fn endpoints() -> Vec<Endpoint> {
             "/v1/jobs/{id}/edits/{edit_id}/preview.png",
             edit_preview,
         ),
+        endpoint(Method::GET, "/v1/jobs/{id}/edits/{edit_id}/pdf", edit_pdf),
+        endpoint(Method::GET, "/v1/jobs/{id}/edits/{edit_id}/png", edit_png),
     ]
 }
 
@@ -315,6 +321,9 @@ fn store_edit(
         urls: EditUrls {
             this: prefix.clone(),
             svg: format!("{prefix}/svg"),
+            flat_svg: format!("{prefix}/svg?flatten=true"),
+            pdf: format!("{prefix}/pdf"),
+            png: format!("{prefix}/png"),
             scene: format!("{prefix}/scene.json"),
             preview: format!("{prefix}/preview.png"),
         },
@@ -364,15 +373,13 @@ async fn check_edit(
 /// Which edit a request names: the job and edit ids of its path.
 type EditPath = Path<(String, String)>;
 
-/// One of an edit's scene files, once the edit exists, named after the job's input and the
-/// edit (`hopper-edit_….svg`).
-async fn edit_file(
+/// The job's record and an edit's scene files, once the edit exists, named after the job's
+/// input and the edit (`hopper-edit_….svg`).
+async fn edit_files(
     state: &AppState,
-    request: &HeaderMap,
     owner: &Owner,
     Path((id, edit_id)): EditPath,
-    kind: FileKind,
-) -> Result<Response, ApiError> {
+) -> Result<(JobRecord, SceneFiles), ApiError> {
     let record = check_edit(state, owner, &id, &edit_id).await?;
     // The record says the edit exists; only its size is looked at, never its changes.
     let queue = state.queue.clone();
@@ -387,7 +394,31 @@ async fn edit_file(
         prefix: format!("edits/{edit_id}/"),
         stem: format!("{}-{edit_id}", record.download_stem()),
     };
+    Ok((record, files))
+}
+
+/// One of an edit's stored scene files ([`edit_files`]).
+async fn edit_file(
+    state: &AppState,
+    request: &HeaderMap,
+    owner: &Owner,
+    path: EditPath,
+    kind: FileKind,
+) -> Result<Response, ApiError> {
+    let (record, files) = edit_files(state, owner, path).await?;
     artefact(state, request, &record, files.stored(kind)).await
+}
+
+/// A file derived from an edit's scene ([`derived_file`]).
+async fn edit_derived(
+    state: &AppState,
+    request: &HeaderMap,
+    owner: &Owner,
+    path: EditPath,
+    file: Derived,
+) -> Result<Response, ApiError> {
+    let (record, files) = edit_files(state, owner, path).await?;
+    derived_file(state, request, &record, &files, file).await
 }
 
 /// Where an edit's record is stored.
@@ -422,11 +453,12 @@ async fn get(
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/svg", tag = "edits", operation_id = "getEditSvg",
-    summary = "The edited layered SVG",
-    params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
+    summary = "The edited layered SVG, or with `flatten=true` the flattened one",
+    params(("id" = JobId, Path), ("edit_id" = EditId, Path), SvgQuery),
     responses(
-        (status = 200, description = "The SVG.", body = Binary, content_type = "image/svg+xml"),
-        ResultProblems,
+        (status = 200, description = "The SVG (layered, or flattened: plain opaque paths).",
+            body = Binary, content_type = "image/svg+xml"),
+        FileProblems,
     ),
 )]
 async fn edit_svg(
@@ -434,8 +466,62 @@ async fn edit_svg(
     Extension(owner): Extension<Owner>,
     path: EditPath,
     headers: HeaderMap,
+    query: Result<Query<SvgQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
-    edit_file(&state, &headers, &owner, path, FileKind::LayeredSvg).await
+    let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
+    if query.flatten {
+        let file = Derived::Flat(FileKind::FlatSvg);
+        edit_derived(&state, &headers, &owner, path, file).await
+    } else {
+        edit_file(&state, &headers, &owner, path, FileKind::LayeredSvg).await
+    }
+}
+
+#[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/pdf", tag = "edits", operation_id = "getEditPdf",
+    summary = "The edited picture as a vector PDF of its flattened SVG",
+    description = "As `GET /v1/jobs/{id}/pdf`, of the edit's scene: drawn on the first request, \
+        then stored and served as a file.",
+    params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
+    responses(
+        (status = 200, description = "The PDF.", body = Binary, content_type = "application/pdf"),
+        FileProblems,
+        (status = 500, response = Problem),
+    ),
+)]
+async fn edit_pdf(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    path: EditPath,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    edit_derived(&state, &headers, &owner, path, Derived::Flat(FileKind::Pdf)).await
+}
+
+#[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/png", tag = "edits", operation_id = "getEditPng",
+    summary = "The edited picture as a PNG of any width, drawn by covec's own renderer",
+    description = "As `GET /v1/jobs/{id}/png`, of the edit's scene: drawn on the first request \
+        for a width, then stored and served as a file.",
+    params(("id" = JobId, Path), ("edit_id" = EditId, Path),
+        ("width" = Option<u64>, Query, minimum = 1, maximum = 4294967295.0,
+        description = "Width in pixels (default: the original image's width); as for the job's PNG.")),
+    responses(
+        (status = 200, description = "The PNG.", body = Binary, content_type = "image/png"),
+        FileProblems,
+        (status = 413, response = Problem),
+        (status = 422, response = Problem),
+        (status = 500, response = Problem),
+    ),
+)]
+async fn edit_png(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    path: EditPath,
+    headers: HeaderMap,
+    query: Result<Query<PngQuery>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Query(query) = query.map_err(|rejection| ApiError::BadQuery(rejection.body_text()))?;
+    let width = query.width()?;
+    edit_derived(&state, &headers, &owner, path, Derived::Png(width)).await
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/edits/{edit_id}/scene.json", tag = "edits", operation_id = "getEditScene",
@@ -443,7 +529,7 @@ async fn edit_svg(
     params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
     responses(
         (status = 200, description = "The scene.", body = SceneJson),
-        ResultProblems,
+        FileProblems,
     ),
 )]
 async fn edit_scene(
@@ -460,7 +546,7 @@ async fn edit_scene(
     params(("id" = JobId, Path), ("edit_id" = EditId, Path)),
     responses(
         (status = 200, description = "The preview image.", body = Binary, content_type = "image/png"),
-        ResultProblems,
+        FileProblems,
     ),
 )]
 async fn edit_preview(

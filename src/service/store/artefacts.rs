@@ -28,8 +28,8 @@ use super::error::{StoreError, io_error};
 const JOBS: &str = "jobs";
 
 /// What a run produces (removed for a re-run, which keeps the inputs): these folders of a
-/// job, and these files.
-const OUTPUT_FOLDERS: [&str; 2] = ["previews", "layers"];
+/// job (`derived`: the files drawn from its scene), and these files.
+const OUTPUT_FOLDERS: [&str; 3] = ["previews", "layers", "derived"];
 const OUTPUT_FILES: [&str; 2] = ["scene.json", "result.svg"];
 
 /// Written by the readiness check to prove the storage takes writes.
