@@ -86,7 +86,7 @@ if [[ -z "${COVEC_SKIP_CHAOS:-}" ]]; then
     scripts/chaos.sh --minutes 3
 fi
 
-# The web page end to end (issue 7), the same test in headless Debian Chromium and Firefox ESR
+# The web page end to end, the same test in headless Debian Chromium and Firefox ESR
 # (tests/browser/driver.mjs), each against a real `covec serve` on a free loopback port with a
 # fresh data directory. Screenshots go to tests/artifacts/browser/BROWSER/. COVEC_SKIP_BROWSER=1
 # skips it.

@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
-# Rate-distortion bench (issue 39): covec at each path count against VTracer's best at equal
-# gzip bytes.
+# Rate-distortion bench: covec at each path count against VTracer's best at equal gzip bytes,
+# VTracer 0.6.5 and, with VTRACER1, VTracer 1.0 with its size options.
 #   COVEC_BENCH=DIR benches/quality/rd.sh COVEC OUT      (COVEC: a covec binary; DIR: the
 #   covec-bench set, which is not part of this repository)
 # Environment: PATHS (covec's path counts, default "8 16 32 64 128 256"); SETS (default "256
 # 512": the 16 bench photos at 256², the 512² set of bench.sh: scikit-image's astronaut.png
 # and four bench photos upscaled 2× with Pillow's Lanczos; "pasted" adds face_set.py's two
-# bench faces pasted small into 512² scenes); PY (a python with pillow, numpy and
+# bench faces pasted small into 512² scenes; "emoji" the bench's rocket emoji); VTRACER1 (a
+# VTracer 1.0 CLI, `cargo install vtracer-cli@1.0.0-alpha.4`: its points are a second anchor,
+# spline with `--simplify 1.5 --optimize 2` and polygon with `--optimize 2` over GRID1); PY (a python with pillow, numpy and
 # scikit-image; default: a venv made in OUT).
 # Every SVG (covec at each path count; VTracer over a grid of filter_speckle × colour
 # precision × gradient step, in spline and in polygon mode) is measured by its `gzip -9n`
@@ -19,7 +21,8 @@
 # CIEDE2000), and VTracer's best per-pixel skin error taken the same way. The staircase, VTracer's best
 # error among its files of at most covec's bytes, is in ratios.tsv too. Points are kept per
 # image in OUT/pts/, so a run that stops resumes (a new binary or grid needs a new OUT).
-# Writes OUT/points.tsv (every point), OUT/ratios.tsv and OUT/ratios.md (covec / VTracer).
+# Writes OUT/points.tsv (every point), OUT/ratios.tsv and OUT/ratios.md (covec / VTracer, a
+# table per anchor).
 # Needs resvg, vtracer, gzip, python3.
 set -eu
 covec=$1; out=$2; here=$(cd "$(dirname "$0")" && pwd); bench=${COVEC_BENCH:?set COVEC_BENCH to the covec-bench directory}
@@ -60,6 +63,21 @@ grid=${GRID:-"16 8 128
 4 4 32
 16 3 64
 4 3 32"}
+# VTracer 1.0's grid: its size options make speckle filtering the main size control (-f 4-64).
+grid1=${GRID1:-"64 8 64
+32 8 64
+32 8 32
+16 8 32
+16 8 16
+8 8 32
+8 8 16
+8 8 8
+4 8 16
+4 8 8
+4 8 4
+16 6 32
+4 6 16"}
+vtracer1=${VTRACER1:-}
 one() {  # one SET IMG: every point of one image -> OUT/pts/SET_NAME.tsv
   local size=$1 img=$2 n w h d svgs=() rows=() tag i skin=() pad=$'\t\t'
   n=$(basename "$img" .png); [ -s "$out/pts/${size}_$n.tsv" ] && return
@@ -75,6 +93,13 @@ one() {  # one SET IMG: every point of one image -> OUT/pts/SET_NAME.tsv
       vtracer -i "$img" -o "$d/vt_${mode}_$tag.svg" --mode "$mode" -f "$f" -p "$c" -g "$g" >/dev/null
       svgs+=("$d/vt_${mode}_$tag.svg"); rows+=("vtracer	$mode	$tag")
     done <<< "$grid"
+    [ -n "$vtracer1" ] || continue
+    local size_options=(--optimize 2); [ "$mode" = spline ] && size_options+=(--simplify 1.5)
+    while read -r f c g; do
+      tag=f${f}_p${c}_g$g
+      "$vtracer1" -i "$img" -o "$d/vt1_${mode}_$tag.svg" --mode "$mode" -f "$f" -p "$c" -g "$g" "${size_options[@]}" >/dev/null
+      svgs+=("$d/vt1_${mode}_$tag.svg"); rows+=("vtracer1	$mode	$tag")
+    done <<< "$grid1"
   done
   for s in "${svgs[@]}"; do resvg -w "$w" -h "$h" "$s" "${s%.svg}.png"; done
   [ -f "$out/masks/$n.png" ] && { skin=(--skin "$out/masks/$n.png"); pad=; }
@@ -93,7 +118,8 @@ for size in $sets; do
     256) imgs=("$bench"/faces/*.png "$bench"/scenes/*.png) ;;
     512) imgs=("$out"/set512/*.png) ;;
     pasted) imgs=("$out"/faceset/paste_*.png) ;;
-    *) echo "unknown set $size (256, 512, pasted)" >&2; exit 2 ;;
+    emoji) imgs=("$bench"/emoji/emoji_rocket.png) ;;
+    *) echo "unknown set $size (256, 512, pasted, emoji)" >&2; exit 2 ;;
   esac
   for img in "${imgs[@]}"; do one "$size" "$img"; done
 done
@@ -103,7 +129,7 @@ done
 import csv, math, sys
 out, sets = sys.argv[1], sys.argv[2].split()
 label = lambda size: f"{size}²" if size.isdigit() else size
-rows = list(csv.DictReader(open(f"{out}/points.tsv"), delimiter="\t"))
+all_rows = list(csv.DictReader(open(f"{out}/points.tsv"), delimiter="\t"))
 def hull(pts):  # lower convex hull of (bytes, err), bytes ascending, then its decreasing part
     pts = sorted(set(pts)); h = []
     for p in pts:
@@ -120,59 +146,71 @@ def interp(h, b):  # (error, flag): flag "<" below the smallest file, ">" above 
 def stair(pts, b):  # best error at bytes <= b (None below the smallest file)
     e = [err for (x, err) in pts if x <= b]
     return min(e) if e else None
-keys = sorted({(r["size"], r["image"]) for r in rows}, key=lambda k: (sets.index(k[0]), k[1]))
-res = []
-for size, img in keys:
-    rs = [r for r in rows if r["image"] == img and r["size"] == size]
-    vt = [r for r in rs if r["tool"] == "vtracer"]
-    for c in sorted((r for r in rs if r["tool"] == "covec"), key=lambda r: int(r["setting"].split("=")[1])):
-        b = int(c["gzip_bytes"]); o = {"image": img, "size": size, "paths": c["setting"].split("=")[1], "covec_bytes": b}
-        for m in ("mse", "gmsd", "skin_pixel"):
-            if not c[m]: continue
-            pts = [(int(r["gzip_bytes"]), float(r[m])) for r in vt]
-            e, flag = interp(hull(pts), b); s = stair(pts, b)
-            o[f"covec_{m}"] = float(c[m]); o[f"vt_{m}"] = e; o[f"flag_{m}"] = flag
-            o[f"ratio_{m}"] = float(c[m]) / e if e > 0 else math.inf
-            o[f"stair_ratio_{m}"] = float(c[m]) / s if s else math.nan
-        if c["skin_colour"]: o["covec_skin_colour"] = float(c["skin_colour"])
-        res.append(o)
 cols = ["image", "size", "paths", "covec_bytes", "covec_mse", "vt_mse", "ratio_mse", "stair_ratio_mse",
         "covec_gmsd", "vt_gmsd", "ratio_gmsd", "stair_ratio_gmsd", "flag_mse", "flag_gmsd",
         "covec_skin_colour", "covec_skin_pixel", "vt_skin_pixel", "ratio_skin_pixel", "stair_ratio_skin_pixel",
         "flag_skin_pixel"]
-with open(f"{out}/ratios.tsv", "w") as f:
-    f.write("\t".join(cols) + "\n")
-    for o in res: f.write("\t".join(f"{o[c]:.4g}" if isinstance(o.get(c), float) else str(o.get(c, "")) for c in cols) + "\n")
-ps = sorted({int(o["paths"]) for o in res})
-md = ["covec / VTracer's best (lower convex hull of its spline and polygon points) at covec's gzip bytes: "
-      "MSE ratio / GMSD ratio; **bold**: above 1 (covec worse); < covec's file is smaller than any "
-      "VTracer file (VTracer's smallest used), > larger than VTracer's best (its lowest error used).", "",
-      "| image | size | " + " | ".join(f"{p}" for p in ps) + " |", "|---|---|" + "---|" * len(ps)]
-cell = lambda x: f"**{x:.2f}**" if x > 1 else f"{x:.2f}"
-for size, img in keys:
-    by = {int(o["paths"]): o for o in res if o["image"] == img and o["size"] == size}
-    md.append(f"| {img} | {label(size)} | " + " | ".join(
-        f"{cell(by[p]['ratio_mse'])}{by[p]['flag_mse']} / {cell(by[p]['ratio_gmsd'])}{by[p]['flag_gmsd']}" if p in by else "" for p in ps) + " |")
-for size in sorted({k[0] for k in keys}, key=sets.index):
-    g = lambda m, p: math.exp(sum(math.log(o[f"ratio_{m}"]) for o in res if o["size"] == size and int(o["paths"]) == p)
-                              / max(1, sum(1 for o in res if o["size"] == size and int(o["paths"]) == p)))
-    md.append(f"| geometric mean | {label(size)} | " + " | ".join(f"{g('mse', p):.2f} / {g('gmsd', p):.2f}" for p in ps) + " |")
-above = [o for o in res if o["ratio_mse"] > 1 or o["ratio_gmsd"] > 1]
-md += ["", f"{len(above)} of {len(res)} (image, path count) points have a ratio above 1:"]
-md += [f"- {o['image']} {label(o['size'])} {o['paths']} paths: " + ", ".join(
-        f"{m.upper()} {o['ratio_' + m]:.2f}" for m in ("mse", "gmsd") if o["ratio_" + m] > 1) for o in above]
-skin = [k for k in keys if any("ratio_skin_pixel" in o for o in res if (o["size"], o["image"]) == k)]
-if skin:
-    md += ["", "Skin inside faces.txt's masks, in CIEDE2000: covec's mean skin colour against the photo's, "
-           "then covec's mean per-pixel error over VTracer's best at covec's gzip bytes; **bold**: a colour "
-           "above 2.3 or a ratio above 1.", "",
-           "| image | size | " + " | ".join(f"{p}" for p in ps) + " |", "|---|---|" + "---|" * len(ps)]
-    for size, img in skin:
+names = {"vtracer": "VTracer 0.6.5", "vtracer1": "VTracer 1.0 (size options on)"}
+tsv, md = [], []
+def report(anchor):  # appends the anchor's rows to tsv and its tables to md
+    global md
+    rows = [r for r in all_rows if r["tool"] in ("covec", anchor)]
+    keys = sorted({(r["size"], r["image"]) for r in rows}, key=lambda k: (sets.index(k[0]), k[1]))
+    res = []
+    for size, img in keys:
+        rs = [r for r in rows if r["image"] == img and r["size"] == size]
+        vt = [r for r in rs if r["tool"] == anchor]
+        for c in sorted((r for r in rs if r["tool"] == "covec"), key=lambda r: int(r["setting"].split("=")[1])):
+            b = int(c["gzip_bytes"]); o = {"image": img, "size": size, "paths": c["setting"].split("=")[1], "covec_bytes": b}
+            for m in ("mse", "gmsd", "skin_pixel"):
+                if not c[m]: continue
+                pts = [(int(r["gzip_bytes"]), float(r[m])) for r in vt]
+                e, flag = interp(hull(pts), b); s = stair(pts, b)
+                o[f"covec_{m}"] = float(c[m]); o[f"vt_{m}"] = e; o[f"flag_{m}"] = flag
+                o[f"ratio_{m}"] = float(c[m]) / e if e > 0 else math.inf
+                o[f"stair_ratio_{m}"] = float(c[m]) / s if s else math.nan
+            if c["skin_colour"]: o["covec_skin_colour"] = float(c["skin_colour"])
+            res.append(o)
+    tsv.extend("\t".join([anchor] + [f"{o[c]:.4g}" if isinstance(o.get(c), float) else str(o.get(c, "")) for c in cols]) + "\n"
+               for o in res)
+    ps = sorted({int(o["paths"]) for o in res})
+    md += ["covec / VTracer's best (lower convex hull of its spline and polygon points) at covec's gzip bytes: "
+          "MSE ratio / GMSD ratio; **bold**: above 1 (covec worse); < covec's file is smaller than any "
+          "VTracer file (VTracer's smallest used), > larger than VTracer's best (its lowest error used).", "",
+          "| image | size | " + " | ".join(f"{p}" for p in ps) + " |", "|---|---|" + "---|" * len(ps)]
+    cell = lambda x: f"**{x:.2f}**" if x > 1 else f"{x:.2f}"
+    for size, img in keys:
         by = {int(o["paths"]): o for o in res if o["image"] == img and o["size"] == size}
-        colour = lambda x: f"**{x:.2f}**" if x > 2.3 else f"{x:.2f}"
         md.append(f"| {img} | {label(size)} | " + " | ".join(
-            f"{colour(by[p]['covec_skin_colour'])} / {cell(by[p]['ratio_skin_pixel'])}{by[p]['flag_skin_pixel']}"
-            if p in by else "" for p in ps) + " |")
+            f"{cell(by[p]['ratio_mse'])}{by[p]['flag_mse']} / {cell(by[p]['ratio_gmsd'])}{by[p]['flag_gmsd']}" if p in by else "" for p in ps) + " |")
+    for size in sorted({k[0] for k in keys}, key=sets.index):
+        g = lambda m, p: math.exp(sum(math.log(o[f"ratio_{m}"]) for o in res if o["size"] == size and int(o["paths"]) == p)
+                                  / max(1, sum(1 for o in res if o["size"] == size and int(o["paths"]) == p)))
+        md.append(f"| geometric mean | {label(size)} | " + " | ".join(f"{g('mse', p):.2f} / {g('gmsd', p):.2f}" for p in ps) + " |")
+    above = [o for o in res if o["ratio_mse"] > 1 or o["ratio_gmsd"] > 1]
+    md += ["", f"{len(above)} of {len(res)} (image, path count) points have a ratio above 1:"]
+    md += [f"- {o['image']} {label(o['size'])} {o['paths']} paths: " + ", ".join(
+            f"{m.upper()} {o['ratio_' + m]:.2f}" for m in ("mse", "gmsd") if o["ratio_" + m] > 1) for o in above]
+    skin = [k for k in keys if any("ratio_skin_pixel" in o for o in res if (o["size"], o["image"]) == k)]
+    if skin:
+        md += ["", "Skin inside faces.txt's masks, in CIEDE2000: covec's mean skin colour against the photo's, "
+               "then covec's mean per-pixel error over VTracer's best at covec's gzip bytes; **bold**: a colour "
+               "above 2.3 or a ratio above 1.", "",
+               "| image | size | " + " | ".join(f"{p}" for p in ps) + " |", "|---|---|" + "---|" * len(ps)]
+        for size, img in skin:
+            by = {int(o["paths"]): o for o in res if o["image"] == img and o["size"] == size}
+            colour = lambda x: f"**{x:.2f}**" if x > 2.3 else f"{x:.2f}"
+            md.append(f"| {img} | {label(size)} | " + " | ".join(
+                f"{colour(by[p]['covec_skin_colour'])} / {cell(by[p]['ratio_skin_pixel'])}{by[p]['flag_skin_pixel']}"
+                if p in by else "" for p in ps) + " |")
+for anchor in names:
+    if any(r["tool"] == anchor for r in all_rows):
+        md += [f"## Against {names[anchor]}", ""]
+        report(anchor)
+        md.append("")
+with open(f"{out}/ratios.tsv", "w") as f:
+    f.write("\t".join(["anchor"] + cols) + "\n")
+    f.writelines(tsv)
 open(f"{out}/ratios.md", "w").write("\n".join(md) + "\n")
 print("\n".join(md))
 PY

@@ -25,25 +25,20 @@ use crate::scene::{LayerKind, Path, Scene};
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct PolishSettings {
     /// Adam in photo mode. Default: the paper's point rate (a pixel a step, at each size the
-    /// polish runs at) with half its colour and opacity rates. Against half the point rate too
-    /// (the earlier default), on the 16 bench photos at 64 paths, seeds 0 / 7 / 13: mean MSE
-    /// −3.7 / −4.5 / −3.7 %, GMSD −5.6 / −6.4 / −5.6 %; on the 16 upscaled to 512² and 1024²,
-    /// MSE −3.0 and −0.8 %, GMSD −4.2 and −3.5 %. At seed 0, 1.5 pixels a step lowered GMSD
-    /// more (−7.8 %) for less MSE (−1.8 %); doubling the colour and opacity rates instead of
-    /// the point rate gave −0.3 % and −0.2 %.
+    /// polish runs at) with half its colour and opacity rates: a photo's edges need the full
+    /// step to reach them in the polish's few iterations (docs/history.md, "Polish settings").
     pub photo_adam: AdamSettings,
     /// Adam in simple mode. Default: half the paper's rates. Flat artwork's edges sit where
-    /// its colours step, and a pixel a step overshoots them: on the 8 bench emoji, the point
-    /// rate of photo mode raised the mean MSE by 4-13 % (three seeds).
+    /// its colours step, and a pixel a step overshoots them (docs/history.md, "Polish
+    /// settings").
     pub simple_adam: AdamSettings,
     /// When the polish stops early.
     pub plateau: PlateauSettings,
     /// Weight of 1 − GMSM, the mean of GMSD's gradient similarity map
     /// ([`GradientSimilarity`]), beside the MSE: a departure from the paper, whose loss is the
     /// MSE alone (weight 0). The MSE rewards a blurred edge as much as a sharp one a pixel off;
-    /// the term asks for the photo's edges where the photo has them. Default 0.01: on the bench
-    /// photos it buys a clearly lower GMSD for a little MSE; 0.03 costs more MSE than it is
-    /// worth, and the term in the earlier stages as well costs time for a worse GMSD. This is
+    /// the term asks for the photo's edges where the photo has them. Default 0.01, the weight
+    /// that buys the bench photos a clearly lower GMSD for a little MSE. This is
     /// the weight for images of up to 256² pixels at 64 paths; larger images and other budgets
     /// get more ([`PolishSettings::similarity_weight`]). Above 64 paths the fill colours see it
     /// at its weight at 64 paths ([`PolishSettings::similarity_weights`]).
@@ -51,19 +46,14 @@ pub(crate) struct PolishSettings {
     /// How far the polish may lower an albedo fill's lightness (the mean of its channels) below
     /// its value when the stage began, in photo mode (no limit in simple mode, whose albedo is
     /// the picture); rising is free. Left free, the MSE lowers a surface's fill to the mean of
-    /// its lit and darker parts wherever no shade path holds the darker ones: the 512²
-    /// astronaut's skin took the mean of the whole face, eyes and mouth included, and went grey
-    /// (4.4 L\* too dark), and the shadowed faces of a Cornell box's white boxes stayed dark
-    /// albedo. Default 0.005 (docs/benchmarks.md): 0.01 let cornell-warm-sky's albedo over
-    /// issue 39's bar; held exactly, the bench photos' MSE rose 2.7 %.
+    /// its lit and darker parts wherever no shade path holds the darker ones, and skin and
+    /// shadowed white surfaces went grey in the albedo. Default 0.005, the loosest that keeps
+    /// the Cornell scenes' albedo right (docs/history.md, "Polish settings").
     pub albedo_lightness_drop: f32,
     /// Share of the canvas a fill must own for [`Self::albedo_lightness_drop`] to hold it.
     /// Default 1-30 %. A fill owning more is at low path counts the picture's base tone over
-    /// several surfaces (face_obama and kodim03 at 8 paths: two fills cover the picture), whose
-    /// mean the MSE rightly asks for: held, it cost them 5 and 12 % MSE. Fills under 1 % are
-    /// at high path counts pieces of a textured surface (face_kodim04_512 at 256 paths: 21 of
-    /// its 28 fills), where holding them cost 22 % MSE, and 0.6 % left free. A bound of 15 or
-    /// 2 % let face_kodim15's skin over issue 39's bar (2.31 and 2.34 at seed 7).
+    /// several surfaces, whose mean the MSE rightly asks for; fills under 1 % are at high path
+    /// counts pieces of a textured surface (docs/history.md, "Polish settings").
     pub lightness_floor_share: Range<f32>,
 }
 
@@ -74,8 +64,8 @@ const SIMILARITY_REFERENCE_SIDE: f32 = 256.0;
 /// How the term's weight grows with the side above [`SIMILARITY_REFERENCE_SIDE`]. The same
 /// picture at twice the size has half the gradient per pixel, and where gradients are small
 /// against GMSD's constant the term is quadratic in them (exponent 2); where they are large it
-/// does not change (0). 1.5 of {1, 1.5, 2} on a set of 512² photos: the largest
-/// that keeps the set's mean MSE no worse than without the growth.
+/// does not change (0). 1.5: the largest that keeps the MSE of a set of 512² photos no worse
+/// than without the growth (docs/history.md, "Polish settings").
 const SIMILARITY_SIZE_EXPONENT: f32 = 1.5;
 
 /// The path budget the set weight was chosen at (also the default budget, `Params::paths`).
@@ -83,16 +73,14 @@ const SIMILARITY_REFERENCE_PATHS: f32 = 64.0;
 
 /// How the term's weight grows with the budget's ratio to [`SIMILARITY_REFERENCE_PATHS`],
 /// below it and above it. Away from 64 paths the MSE alone left edges that VTracer's files of
-/// the same gzip bytes draw better (GMSD above theirs at 8-32 paths on scene_chapel, at 256
-/// on six bench photos), while covec's MSE stayed at 0.19-0.93 of theirs: the weight buys
-/// GMSD there with MSE to spare. Exponents from `benches/quality/rd.sh` on the bench photos
-/// (docs/benchmarks.md): 1 below (8 paths: 8×); above, 1 left face_kodim17 at 256 paths
-/// above VTracer's GMSD, 1.3 (6×) did not.
+/// the same gzip bytes draw better, with MSE to spare: the weight buys GMSD with it.
+/// Exponents from `benches/quality/rd.sh` (docs/benchmarks.md, "Rate and distortion against
+/// VTracer").
 const SIMILARITY_PATHS_EXPONENTS: (f32, f32) = (1.0, 1.3);
 
 /// The largest budget the exponents were measured at; above it the weight stays at its value
-/// there (6×). Growing on, at 1024 paths (37×) it cost 37-87 % MSE on three bench photos, 6×
-/// cost 9-15 %.
+/// there, since growing on cost far more MSE than it gave GMSD (docs/benchmarks.md, "Rate
+/// and distortion against VTracer").
 const SIMILARITY_PATHS_CAP: f32 = 256.0;
 
 /// The gradient-similarity term's weights for one job.
@@ -132,11 +120,8 @@ impl PolishSettings {
 
     /// [`Self::similarity_weight`] for the shapes; for the colours, the weight at
     /// [`SIMILARITY_REFERENCE_PATHS`] when the budget is above it. The term asks for the
-    /// photo's edges, and grown for large budgets it also pulled fill colours away from the
-    /// photo's to sharpen texture: the mean skin colour of the 512² astronaut was 2.80 / 2.73
-    /// / 3.19 ΔE00 from the photo's at 256 paths (seeds 0 / 7 / 13; 1.99 / 2.02 / 1.70 with
-    /// the colours at the 64-path weight), paste_hopper_coffee's 3.80 / 1.40 / 3.38 at 128
-    /// paths (2.09 / 1.29 / 2.40).
+    /// photo's edges, and grown for large budgets it also pulled fill colours, skin's among
+    /// them, away from the photo's to sharpen texture (docs/history.md, "Polish settings").
     pub(crate) fn similarity_weights(&self, pixels: usize, paths: u32) -> SimilarityWeights {
         let reference = SIMILARITY_REFERENCE_PATHS as u32;
         SimilarityWeights {
