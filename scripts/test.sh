@@ -11,11 +11,13 @@ fi
 
 scripts/setup-build.sh
 
-# The code's shape (docs/design.md, "Code map"): layered imports, and a build without the
-# command line's and the service's dependencies.
+# The code's shape (docs/design.md, "Code map"): layered imports, a build without the command
+# line's and the service's dependencies, and the command line without the service's (README,
+# "Install").
 python3 scripts/check-modules.py
 python3 scripts/check-modules.py --self-test
 cargo check --quiet --lib --no-default-features
+cargo check --quiet --bin covec --no-default-features --features cli
 # The Dockerfile and deploy/ files, which nothing here builds or applies: linted and validated.
 scripts/check-deploy.sh
 # Formatting and lints, where the toolchain has rustfmt and clippy (rustup's default profile does).
