@@ -27,7 +27,7 @@ else
     echo "test.sh: no rustfmt in this toolchain, formatting not checked" >&2
 fi
 if cargo clippy --version >/dev/null 2>&1; then
-    cargo clippy --quiet --all-targets -- -D warnings
+    cargo clippy --quiet --workspace --all-targets -- -D warnings
 else
     echo "test.sh: no clippy in this toolchain, lints skipped" >&2
 fi
@@ -37,6 +37,13 @@ scripts/setup-clients.sh
 scripts/setup-s3.sh
 scripts/setup-postgres.sh
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
+
+# The Python package (docs/python.md): its wheel built with maturin, installed into a fresh
+# virtual environment, its pytest suite run there against the command line built above.
+# COVEC_SKIP_PYTHON=1 skips it.
+if [[ -z "${COVEC_SKIP_PYTHON:-}" ]]; then
+    scripts/test-python.sh
+fi
 
 # The service tests again on the shared backend (README, "Scaling out"): every test data directory
 # gets its own throwaway PostgreSQL and its own bucket on one moto S3 server started here
