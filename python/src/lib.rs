@@ -45,6 +45,7 @@ struct Given {
     data: GivenData,
 }
 
+/// A file's bytes, or samples with `[width, height, channels]`.
 enum GivenData {
     Encoded(Vec<u8>),
     U8(Vec<u8>, [u32; 3]),
