@@ -39,9 +39,10 @@ scripts/setup-postgres.sh
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
 
 # The Python package (docs/python.md): its wheel built with maturin, installed into a fresh
-# virtual environment, its pytest suite run there against the command line built above.
-# COVEC_SKIP_PYTHON=1 skips it.
+# virtual environment, its pytest suite run there against the command line (3-5 minutes after
+# the builds above, most of it pyo3's). COVEC_SKIP_PYTHON=1 skips it.
 if [[ -z "${COVEC_SKIP_PYTHON:-}" ]]; then
+    scripts/setup-python.sh
     scripts/test-python.sh
 fi
 
