@@ -3,7 +3,7 @@ mode a run chose). Every file and edit is made by covec's library through the ex
 
 import json
 import os
-from typing import NamedTuple, Optional, Sequence, Tuple, Union
+from typing import NamedTuple, Optional, Sequence, Tuple, Union, cast
 
 from . import _covec, _inputs
 from ._errors import ParamsError
@@ -194,7 +194,7 @@ class Scene:
         if changes is None:
             if (at is None) == (path is None) or color is None:
                 raise TypeError("give `changes`, or one of `at` and `path` with `color`")
-            changes = [(tuple(at) if at is not None else path, color)]
+            changes = [(cast(Target, tuple(at) if at is not None else path), color)]
         elif at is not None or path is not None or color is not None:
             raise TypeError("give either `changes` or `at`/`path` with `color`, not both")
         items = list(changes.items() if isinstance(changes, dict) else changes)
@@ -232,7 +232,7 @@ class Scene:
         return self.svg()
 
     def __repr__(self) -> str:
-        counts = {}
+        counts: dict[str, int] = {}
         for p in self.paths:
             counts[p.layer] = counts.get(p.layer, 0) + 1
         layers = ", ".join(f"{counts.get(name, 0)} {name}" for name in ("albedo", "shade", "light"))
