@@ -9,10 +9,11 @@
 # its default features. The library code the package calls is the same with them or without
 # (they add the command line and the service, which the module's linking leaves out), and so
 # the wheel reuses the library the command line's build has just compiled instead of compiling
-# it again (4-5 minutes of the test command's 2 cores). The published wheel, without them, has
-# the library test.sh checks alone and this module, which must not use what the features add:
-# checked here by name (the words `service` and `web` appear nowhere in it), as compiling the
-# module once more without them would cost a minute. COVEC_PYTHON_PROFILE picks another profile.
+# it again (about 4 minutes of the test command's 2 cores, measured under load). The published
+# wheel, without them, has the library test.sh checks alone and this module, which must not use
+# what the features add: checked here by name (the words `service` and `web` appear nowhere in
+# it), as checking the module once more without them took 100 s of CPU (pyo3 once more).
+# COVEC_PYTHON_PROFILE picks another profile.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if grep -nwE 'service|web' python/src/*.rs; then
