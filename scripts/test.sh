@@ -11,11 +11,13 @@ fi
 
 scripts/setup-build.sh
 
-# The code's shape (docs/design.md, "Code map"): layered imports, and a build without the
-# command line's and the service's dependencies.
+# The code's shape (docs/design.md, "Code map"): layered imports, a build without the command
+# line's and the service's dependencies, and the command line without the service's (README,
+# "Install").
 python3 scripts/check-modules.py
 python3 scripts/check-modules.py --self-test
 cargo check --quiet --lib --no-default-features
+cargo check --quiet --bin covec --no-default-features --features cli
 # The Dockerfile and deploy/ files, which nothing here builds or applies: linted and validated.
 scripts/check-deploy.sh
 # Formatting and lints, where the toolchain has rustfmt and clippy (rustup's default profile does).
@@ -25,7 +27,7 @@ else
     echo "test.sh: no rustfmt in this toolchain, formatting not checked" >&2
 fi
 if cargo clippy --version >/dev/null 2>&1; then
-    cargo clippy --quiet --all-targets -- -D warnings
+    cargo clippy --quiet --workspace --all-targets -- -D warnings
 else
     echo "test.sh: no clippy in this toolchain, lints skipped" >&2
 fi
@@ -35,6 +37,14 @@ scripts/setup-clients.sh
 scripts/setup-s3.sh
 scripts/setup-postgres.sh
 cargo nextest run --no-fail-fast --cargo-profile test "$@"
+
+# The Python package (docs/python.md): its wheel built with maturin, installed into a fresh
+# virtual environment, its pytest suite run there against the command line (3-5 minutes after
+# the builds above, most of it pyo3's). COVEC_SKIP_PYTHON=1 skips it.
+if [[ -z "${COVEC_SKIP_PYTHON:-}" ]]; then
+    scripts/setup-python.sh
+    scripts/test-python.sh
+fi
 
 # The service tests again on the shared backend (README, "Scaling out"): every test data directory
 # gets its own throwaway PostgreSQL and its own bucket on one moto S3 server started here

@@ -6,10 +6,13 @@
 //! - [`recolor_by_reference`]: paper Appendix D, from an edited copy of the original image;
 //! - [`recolor_paths`]: set colours of named paths, or of the albedo path under a point.
 
+use image::DynamicImage;
+
 use crate::decompose::mask::Mask;
 use crate::decompose::min_mask_area;
 use crate::geom::contour::{simplify_closed, simplify_tolerance};
-use crate::render::composite::{composite_layers, render_layers};
+use crate::imageio::{InputError, check_aspect, resize_rgb};
+use crate::render::composite::{composite, composite_layers, render_layers};
 use crate::render::{Image, Rasterizer};
 use crate::scene::{LayerKind, Path, PathId, Point, Scene};
 
@@ -127,6 +130,9 @@ pub enum EditError {
     /// `k` of zero paths.
     #[error("k must be at least 1")]
     ZeroK,
+    /// A reference or original image that does not fit the scene ([`recolor_by_reference_images`]).
+    #[error(transparent)]
+    Input(#[from] InputError),
 }
 
 /// Sets the fills of the given paths; everything else, shade and light included, is kept.
@@ -160,6 +166,36 @@ pub fn recolor_paths(scene: &Scene, changes: &[ColorChange]) -> Result<Edit, Edi
         scene: edited,
         changed,
     })
+}
+
+/// [`recolor_by_reference`] from the images as given, at any size with the scene's aspect
+/// ratio: both are resized to the working canvas; without `original`, the scene's own
+/// rendering stands in for it (and so counts vectorisation error as edits too).
+pub fn recolor_by_reference_images(
+    scene: &Scene,
+    reference: &DynamicImage,
+    original: Option<&DynamicImage>,
+    params: &ReferenceParams,
+) -> Result<Edit, EditError> {
+    let reference_size = (reference.width(), reference.height());
+    check_aspect(
+        "the reference image",
+        reference_size,
+        (scene.original_width, scene.original_height),
+    )?;
+    let (w, h) = (scene.width, scene.height);
+    let original = match original {
+        Some(original) => {
+            check_aspect(
+                "the original image",
+                (original.width(), original.height()),
+                reference_size,
+            )?;
+            resize_rgb(original, w, h)
+        }
+        None => composite(scene),
+    };
+    recolor_by_reference(scene, &original, &resize_rgb(reference, w, h), params)
 }
 
 /// Recolours up to `k` albedo paths so the scene follows `reference`, an edited copy of

@@ -7,7 +7,7 @@
 use std::io::Cursor;
 
 use image::imageops::FilterType;
-use image::{DynamicImage, GrayImage, ImageDecoder, ImageReader};
+use image::{DynamicImage, GrayImage, ImageBuffer, ImageDecoder, ImageReader};
 
 use crate::render::Image;
 
@@ -34,7 +34,7 @@ impl Default for Limits {
 }
 
 /// Why an input was refused; each names the problem for the user.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, PartialEq, thiserror::Error)]
 pub enum InputError {
     /// Not a PNG, JPEG or WebP file, or a broken one.
     #[error("the image could not be decoded: {0}")]
@@ -88,6 +88,58 @@ pub enum InputError {
         image_width: u32,
         image_height: u32,
     },
+    #[error(
+        "the pixel array has {0} channels; an image has 1 (grey), 2 (grey and alpha), 3 (RGB) or 4 (RGBA)"
+    )]
+    /// [`Pixels`] with a channel count no image has.
+    Channels(u32),
+    #[error("the pixel array holds {actual} values, not {width}×{height}×{channels}")]
+    /// [`Pixels`] whose samples do not fill its width × height × channels.
+    #[allow(missing_docs)]
+    SampleCount {
+        actual: usize,
+        width: u32,
+        height: u32,
+        channels: u32,
+    },
+    #[error(
+        "the pixel array holds {0}, outside [0, 1]: float pixels are in [0, 1] (give 0-255 values as 8-bit integers)"
+    )]
+    /// [`Samples::F32`] with a value outside [0, 1] or not a number.
+    FloatRange(f32),
+}
+
+/// An input as the caller holds it.
+pub enum Source<'a> {
+    /// A PNG, JPEG or WebP file's bytes.
+    Encoded(&'a [u8]),
+    /// Pixels already decoded, e.g. an array from another library.
+    Pixels(Pixels<'a>),
+}
+
+/// Decoded pixels: rows top to bottom, each pixel's channels together (as a row-major
+/// height × width × channels array holds them).
+#[derive(Clone, Copy)]
+pub struct Pixels<'a> {
+    /// Pixels per row.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// 1 (grey), 2 (grey and alpha), 3 (RGB) or 4 (RGBA).
+    pub channels: u32,
+    /// The values.
+    pub samples: Samples<'a>,
+}
+
+/// The values of [`Pixels`], of one of the sample types an image holds.
+#[derive(Clone, Copy)]
+pub enum Samples<'a> {
+    /// 0-255.
+    U8(&'a [u8]),
+    /// 0-65535.
+    U16(&'a [u16]),
+    /// 0-1.
+    F32(&'a [f32]),
 }
 
 /// Refuses `size` unless it has the aspect ratio of `image` within one pixel of rounding: an
@@ -112,14 +164,25 @@ pub fn check_aspect(what: &str, size: (u32, u32), image: (u32, u32)) -> Result<(
 /// before decoding. Alpha is composited over white, so the result has no alpha channel:
 /// `Rgb8` for 8-bit sources, `Rgb16` for 16-bit ones, `Rgb32F` for float ones.
 pub fn decode_image(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputError> {
-    Ok(flatten_over_white(decode_oriented(bytes, limits)?))
+    load_image(Source::Encoded(bytes), limits)
+}
+
+/// [`decode_image`] for either [`Source`]: pixels in memory pass the same limits and lose
+/// their alpha the same way.
+pub fn load_image(source: Source<'_>, limits: &Limits) -> Result<DynamicImage, InputError> {
+    Ok(flatten_over_white(oriented(source, limits)?))
 }
 
 /// Decodes one binary mask (any PNG/JPEG/WebP; colour is reduced to luma). `name` appears in
 /// errors. Non-zero pixels are "inside"; the mask must hold at most two distinct values, one of
 /// them 0 (an all-zero or all-one mask is allowed).
 pub fn decode_mask(name: &str, bytes: &[u8], limits: &Limits) -> Result<GrayImage, InputError> {
-    let image = flatten_over_white(decode_oriented(bytes, limits)?).into_luma16();
+    load_mask(name, Source::Encoded(bytes), limits)
+}
+
+/// [`decode_mask`] for either [`Source`].
+pub fn load_mask(name: &str, source: Source<'_>, limits: &Limits) -> Result<GrayImage, InputError> {
+    let image = flatten_over_white(oriented(source, limits)?).into_luma16();
     let mut levels: Vec<u16> = Vec::new();
     for &v in image.as_raw() {
         if !levels.contains(&v) {
@@ -151,22 +214,33 @@ pub fn decode_masks<'a>(
     files: impl ExactSizeIterator<Item = (&'a str, &'a [u8])>,
     limits: &Limits,
 ) -> Result<Vec<GrayImage>, InputError> {
-    if files.len() > limits.max_masks {
-        return Err(InputError::TooManyMasks {
-            count: files.len(),
-            max: limits.max_masks,
-        });
-    }
+    check_mask_count(files.len(), limits)?;
     files
         .map(|(name, bytes)| decode_mask(name, bytes, limits))
         .collect()
+}
+
+/// Refuses more than `limits.max_masks` masks.
+pub fn check_mask_count(count: usize, limits: &Limits) -> Result<(), InputError> {
+    if count > limits.max_masks {
+        return Err(InputError::TooManyMasks {
+            count,
+            max: limits.max_masks,
+        });
+    }
+    Ok(())
 }
 
 /// Decodes a label map (each distinct colour or grey value is a segment), refusing more than
 /// `limits.max_masks` distinct values. Returned as decoded (orientation applied), for the
 /// pipeline's label-map input.
 pub fn decode_labels(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputError> {
-    let image = decode_oriented(bytes, limits)?;
+    load_labels(Source::Encoded(bytes), limits)
+}
+
+/// [`decode_labels`] for either [`Source`].
+pub fn load_labels(source: Source<'_>, limits: &Limits) -> Result<DynamicImage, InputError> {
+    let image = oriented(source, limits)?;
     let rgba = image.to_rgba16();
     let mut seen = std::collections::HashSet::new();
     for pixel in rgba.pixels() {
@@ -182,17 +256,21 @@ pub fn decode_labels(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, Inpu
 
 /// PNG bytes of an image (values clamped to [0, 1], 8-bit sRGB).
 pub fn encode_png(image: &Image) -> Vec<u8> {
-    let data = image
-        .data
-        .iter()
-        .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
-        .collect();
-    let rgb = image::RgbImage::from_raw(image.width as u32, image.height as u32, data)
+    let rgb = image::RgbImage::from_raw(image.width as u32, image.height as u32, to_rgb8(image))
         .expect("Image data holds width × height × 3 values");
     let mut bytes = Vec::new();
     rgb.write_to(&mut Cursor::new(&mut bytes), image::ImageFormat::Png)
         .expect("PNG encoding into memory cannot fail");
     bytes
+}
+
+/// An image's values as 8-bit sRGB (clamped to [0, 1], rounded), as [`encode_png`] writes them.
+pub fn to_rgb8(image: &Image) -> Vec<u8> {
+    image
+        .data
+        .iter()
+        .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect()
 }
 
 /// An image as an f32 RGB [`Image`] in [0, 1], alpha composited over white.
@@ -263,6 +341,95 @@ pub fn halve_image(image: &Image) -> Image {
 /// The media types of the image formats covec decodes (the `image` crate's features in
 /// Cargo.toml): what an input may be.
 pub const ACCEPTED_MEDIA_TYPES: [&str; 3] = ["image/png", "image/jpeg", "image/webp"];
+
+/// The image of `source` as decoded (orientation applied, alpha kept), within `limits`.
+fn oriented(source: Source<'_>, limits: &Limits) -> Result<DynamicImage, InputError> {
+    match source {
+        Source::Encoded(bytes) => decode_oriented(bytes, limits),
+        Source::Pixels(pixels) => from_pixels(pixels, limits),
+    }
+}
+
+/// Pixels in memory as an image, refused as a file of their size would be (empty, over
+/// `max_pixels`), and when their shape or values are no image's.
+fn from_pixels(pixels: Pixels<'_>, limits: &Limits) -> Result<DynamicImage, InputError> {
+    let Pixels {
+        width,
+        height,
+        channels,
+        samples,
+    } = pixels;
+    if width == 0 || height == 0 {
+        return Err(InputError::Empty { width, height });
+    }
+    let count = u64::from(width) * u64::from(height);
+    if count > limits.max_pixels {
+        return Err(InputError::TooManyPixels {
+            width,
+            height,
+            pixels: count,
+            max: limits.max_pixels,
+        });
+    }
+    if !(1..=4).contains(&channels) {
+        return Err(InputError::Channels(channels));
+    }
+    let actual = match samples {
+        Samples::U8(values) => values.len(),
+        Samples::U16(values) => values.len(),
+        Samples::F32(values) => values.len(),
+    };
+    if actual as u64 != count * u64::from(channels) {
+        return Err(InputError::SampleCount {
+            actual,
+            width,
+            height,
+            channels,
+        });
+    }
+    let (w, h) = (width, height);
+    let image = match samples {
+        Samples::U8(values) => {
+            let values = values.to_vec();
+            match channels {
+                1 => DynamicImage::ImageLuma8(ImageBuffer::from_raw(w, h, values).expect("sized")),
+                2 => DynamicImage::ImageLumaA8(ImageBuffer::from_raw(w, h, values).expect("sized")),
+                3 => DynamicImage::ImageRgb8(ImageBuffer::from_raw(w, h, values).expect("sized")),
+                _ => DynamicImage::ImageRgba8(ImageBuffer::from_raw(w, h, values).expect("sized")),
+            }
+        }
+        Samples::U16(values) => {
+            let values = values.to_vec();
+            match channels {
+                1 => DynamicImage::ImageLuma16(ImageBuffer::from_raw(w, h, values).expect("sized")),
+                2 => {
+                    DynamicImage::ImageLumaA16(ImageBuffer::from_raw(w, h, values).expect("sized"))
+                }
+                3 => DynamicImage::ImageRgb16(ImageBuffer::from_raw(w, h, values).expect("sized")),
+                _ => DynamicImage::ImageRgba16(ImageBuffer::from_raw(w, h, values).expect("sized")),
+            }
+        }
+        Samples::F32(values) => {
+            if let Some(&bad) = values.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+                return Err(InputError::FloatRange(bad));
+            }
+            // The image crate has no float grey: grey repeats into RGB, before any alpha.
+            let values: Vec<f32> = match channels {
+                1 => values.iter().flat_map(|&v| [v; 3]).collect(),
+                2 => (values.chunks_exact(2))
+                    .flat_map(|p| [p[0], p[0], p[0], p[1]])
+                    .collect(),
+                _ => values.to_vec(),
+            };
+            if channels % 2 == 0 {
+                DynamicImage::ImageRgba32F(ImageBuffer::from_raw(w, h, values).expect("sized"))
+            } else {
+                DynamicImage::ImageRgb32F(ImageBuffer::from_raw(w, h, values).expect("sized"))
+            }
+        }
+    };
+    Ok(image)
+}
 
 fn decode_oriented(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputError> {
     let undecodable = |e: image::ImageError| InputError::Undecodable(e.to_string());

@@ -4,6 +4,7 @@
 
 use crate::imageio::encode_png;
 use crate::pdf;
+use crate::render::Image;
 use crate::render::composite::composite;
 use crate::scene::{LayerKind, Scene};
 use crate::svg::{self, SvgOptions};
@@ -135,9 +136,14 @@ pub fn check_canvas(scene: &Scene, max_pixels: u64) -> Result<(), RasterError> {
 /// renderer with the geometry scaled by width / working width: the picture that was optimised,
 /// at any size, without relying on a viewer's blend modes.
 pub fn png(scene: &Scene, width: Option<u32>, max_pixels: u64) -> Result<Vec<u8>, RasterError> {
+    Ok(encode_png(&raster(scene, width, max_pixels)?))
+}
+
+/// The picture [`png`] encodes, as values in [0, 1].
+pub fn raster(scene: &Scene, width: Option<u32>, max_pixels: u64) -> Result<Image, RasterError> {
     let (w, h) = raster_size(scene, width, max_pixels)?;
     let scaled = scene.rescaled(w as f32 / scene.width as f32, w, h);
-    Ok(encode_png(&composite(&scaled)))
+    Ok(composite(&scaled))
 }
 
 /// One file's contents.

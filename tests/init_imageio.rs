@@ -1,8 +1,12 @@
-//! Decoding with limits: formats, bit depths, alpha over white, EXIF orientation.
+//! Decoding with limits: formats, bit depths, alpha over white, EXIF orientation; pixels in
+//! memory under the same rules.
 
 use std::io::Cursor;
 
-use covec::imageio::{InputError, Limits, decode_image, decode_labels, decode_mask, encode_png};
+use covec::imageio::{
+    InputError, Limits, Pixels, Samples, Source, decode_image, decode_labels, decode_mask,
+    encode_png, load_image, load_labels, load_mask,
+};
 use covec::render::Image;
 use image::{DynamicImage, ImageEncoder, ImageFormat};
 
@@ -173,6 +177,90 @@ fn undecodable_bytes_and_non_binary_masks_are_named() {
         matches!(err, InputError::TooManyLabels { max: 10 }),
         "{err}"
     );
+}
+
+/// `samples` as [`Pixels`] of `width × height × channels`.
+fn pixels(width: u32, height: u32, channels: u32, samples: Samples<'_>) -> Source<'_> {
+    Source::Pixels(Pixels {
+        width,
+        height,
+        channels,
+        samples,
+    })
+}
+
+#[test]
+fn pixels_in_memory_are_the_image_a_file_of_them_is() {
+    let rgba: Vec<u8> = (0..4 * 3 * 4).map(|v| (v * 5) as u8).collect();
+    let file = encode(
+        &DynamicImage::ImageRgba8(image::RgbaImage::from_raw(4, 3, rgba.clone()).unwrap()),
+        ImageFormat::Png,
+    );
+    let limits = Limits::default();
+    let from_file = decode_image(&file, &limits).unwrap();
+    let from_memory = load_image(pixels(4, 3, 4, Samples::U8(&rgba)), &limits).unwrap();
+    assert_eq!(from_memory, from_file, "alpha over white, as decoded");
+
+    // Grey floats become RGB; 16 bits stay 16 bits.
+    let grey = load_image(pixels(2, 1, 1, Samples::F32(&[0.0, 0.5])), &limits).unwrap();
+    assert_eq!(grey.to_rgb32f().into_raw(), [0.0, 0.0, 0.0, 0.5, 0.5, 0.5]);
+    let deep = load_image(pixels(1, 1, 3, Samples::U16(&[1, 2, 3])), &limits).unwrap();
+    assert!(matches!(deep, DynamicImage::ImageRgb16(_)));
+
+    // A mask and a label map from memory pass the files' checks.
+    let mask = load_mask("1", pixels(2, 1, 1, Samples::U8(&[0, 1])), &limits).unwrap();
+    assert_eq!(mask.into_raw(), [0, 255]);
+    let error = load_mask("2", pixels(3, 1, 1, Samples::U8(&[0, 1, 2])), &limits).unwrap_err();
+    assert!(
+        matches!(error, InputError::NonBinaryMask { levels: 3, .. }),
+        "{error}"
+    );
+    let few = Limits {
+        max_masks: 1,
+        ..Limits::default()
+    };
+    let error = load_labels(pixels(2, 1, 1, Samples::U16(&[7, 9])), &few).unwrap_err();
+    assert_eq!(error, InputError::TooManyLabels { max: 1 });
+}
+
+#[test]
+fn pixels_no_image_holds_are_refused() {
+    let limits = Limits::default();
+    let refused = |source| load_image(source, &limits).unwrap_err();
+    assert_eq!(
+        refused(pixels(0, 3, 3, Samples::U8(&[]))),
+        InputError::Empty {
+            width: 0,
+            height: 3
+        }
+    );
+    assert_eq!(
+        refused(pixels(1, 1, 5, Samples::U8(&[0; 5]))),
+        InputError::Channels(5)
+    );
+    assert_eq!(
+        refused(pixels(2, 2, 3, Samples::U8(&[0; 11]))),
+        InputError::SampleCount {
+            actual: 11,
+            width: 2,
+            height: 2,
+            channels: 3
+        }
+    );
+    assert_eq!(
+        refused(pixels(1, 1, 1, Samples::F32(&[255.0]))),
+        InputError::FloatRange(255.0)
+    );
+    assert!(matches!(
+        refused(pixels(1, 1, 1, Samples::F32(&[f32::NAN]))),
+        InputError::FloatRange(v) if v.is_nan()
+    ));
+    let small = Limits {
+        max_pixels: 3,
+        ..Limits::default()
+    };
+    let error = load_image(pixels(2, 2, 1, Samples::U8(&[0; 4])), &small).unwrap_err();
+    assert!(matches!(error, InputError::TooManyPixels { pixels: 4, .. }));
 }
 
 #[test]

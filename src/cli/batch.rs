@@ -333,16 +333,8 @@ struct ImageProgress<'a> {
 
 impl Observer for ImageProgress<'_> {
     fn progress(&self, p: &Progress) {
-        let stages = u64::from(p.stage_count.max(1));
-        let within = if p.iterations > 0 {
-            u64::from(p.iteration) * STEPS / u64::from(p.iterations)
-        } else {
-            0
-        };
-        self.batch.set(
-            self.index,
-            (u64::from(p.stage_index) * STEPS + within) / stages,
-        );
+        self.batch
+            .set(self.index, (p.fraction() * STEPS as f32) as u64);
     }
 
     fn preview(&self, _name: &str, _image: &Image) {}

@@ -6,9 +6,8 @@ use clap::Args as ClapArgs;
 
 use super::io::{self, IoError};
 use covec::edit::{self, ColorChange, EditError, ReferenceParams, Target};
-use covec::imageio::{InputError, Limits, check_aspect, resize_rgb};
+use covec::imageio::Limits;
 use covec::output::{self, EDIT_FILES, FileKind};
-use covec::render::composite::composite;
 use covec::scene::{PathId, Point};
 use covec::svg;
 
@@ -74,8 +73,6 @@ pub enum Error {
     #[error("`{0}` is not X,Y=#RRGGBB (e.g. 120.5,88=#3366ff)")]
     BadAt(String),
     #[error(transparent)]
-    Input(#[from] InputError),
-    #[error(transparent)]
     Edit(#[from] EditError),
 }
 
@@ -97,32 +94,11 @@ pub fn run(args: &Args) -> Result<(), Error> {
                 delta: args.delta,
                 epsilon: args.epsilon,
             };
-            let reference_image = io::decode_image(reference, &Limits::default())?;
-            let reference_size = (reference_image.width(), reference_image.height());
-            check_aspect(
-                "the reference",
-                reference_size,
-                (scene.original_width, scene.original_height),
-            )?;
-            let (w, h) = (scene.width, scene.height);
-            let original = match &args.original {
-                Some(path) => {
-                    let original = io::decode_image(path, &Limits::default())?;
-                    check_aspect(
-                        "the original",
-                        (original.width(), original.height()),
-                        reference_size,
-                    )?;
-                    resize_rgb(&original, w, h)
-                }
-                None => composite(&scene),
-            };
-            edit::recolor_by_reference(
-                &scene,
-                &original,
-                &resize_rgb(&reference_image, w, h),
-                &params,
-            )?
+            let reference = io::decode_image(reference, &Limits::default())?;
+            let original = (args.original.as_deref())
+                .map(|path| io::decode_image(path, &Limits::default()))
+                .transpose()?;
+            edit::recolor_by_reference_images(&scene, &reference, original.as_ref(), &params)?
         }
         None => {
             let mut changes = Vec::new();

@@ -3,12 +3,15 @@
 pub mod batch;
 pub mod edit;
 pub mod eval;
+#[cfg(feature = "service")]
 pub mod healthcheck;
 pub mod intrinsic;
 pub mod io;
+#[cfg(feature = "service")]
 pub mod openapi;
 pub mod reference;
 pub mod render;
+#[cfg(feature = "service")]
 pub mod serve;
 pub mod vectorize;
 

@@ -325,14 +325,8 @@ impl CliObserver {
 impl Observer for CliObserver {
     fn progress(&self, p: &Progress) {
         if let Some(bar) = &self.bar {
-            let total = u64::from(p.stage_count) * 1000;
-            let within = if p.iterations > 0 {
-                u64::from(p.iteration) * 1000 / u64::from(p.iterations)
-            } else {
-                0
-            };
-            bar.set_length(total);
-            bar.set_position(u64::from(p.stage_index) * 1000 + within);
+            bar.set_length(1000);
+            bar.set_position((p.fraction() * 1000.0) as u64);
             let loss = p.loss.map(|l| format!(", loss {l:.5}")).unwrap_or_default();
             bar.set_message(format!(
                 "{}/{} {} {}/{}{loss}",

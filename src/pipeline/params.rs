@@ -240,6 +240,20 @@ pub struct Progress {
     pub elapsed: Duration,
 }
 
+impl Progress {
+    /// How much of the run is done, in [0, 1]: the stages before this one, and the share of
+    /// this one's iterations done.
+    pub fn fraction(&self) -> f32 {
+        // A stage of no iterations is done as soon as it reports.
+        let within = if self.iterations == 0 {
+            1.0
+        } else {
+            (self.iteration as f32 / self.iterations as f32).min(1.0)
+        };
+        ((self.stage_index as f32 + within) / self.stage_count.max(1) as f32).clamp(0.0, 1.0)
+    }
+}
+
 /// Receives progress and previews while a run goes on. Called from worker threads.
 pub trait Observer: Sync {
     /// A progress report: at least one when each stage begins and ends.

@@ -412,8 +412,12 @@ impl From<InputError> for ApiError {
             aspect @ imageio::InputError::AspectRatio { .. } => {
                 ApiError::InvalidInput(aspect.to_string())
             }
+            // The last three come from pixels in memory, which the service never takes.
             other @ (imageio::InputError::Empty { .. }
-            | imageio::InputError::NonBinaryMask { .. }) => {
+            | imageio::InputError::NonBinaryMask { .. }
+            | imageio::InputError::Channels(_)
+            | imageio::InputError::SampleCount { .. }
+            | imageio::InputError::FloatRange(_)) => {
                 ApiError::InvalidInput(format!("{what}: {other}"))
             }
         }

@@ -198,15 +198,7 @@ pub struct StageView {
 
 impl From<&Progress> for ProgressView {
     fn from(progress: &Progress) -> Self {
-        let stage_count = progress.stage_count.max(1);
-        let within = if progress.iterations == 0 {
-            1.0
-        } else {
-            progress.iteration as f32 / progress.iterations as f32
-        };
-        let fraction = ((progress.stage_index as f32 + within.clamp(0.0, 1.0))
-            / stage_count as f32)
-            .clamp(0.0, 1.0);
+        let fraction = progress.fraction();
         let elapsed = progress.elapsed.as_secs_f32();
         let eta_seconds = (fraction > 0.01).then(|| elapsed * (1.0 - fraction) / fraction);
         Self {

@@ -23,7 +23,7 @@ use super::store::digest;
 use super::submit::{UploadQuery, read_body};
 use super::{AppState, Endpoint, endpoint};
 use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
-use crate::imageio::{self, resize_rgb};
+use crate::imageio;
 use crate::output::{self, EDIT_FILES, FileKind};
 use crate::scene::PathId;
 use crate::svg;
@@ -155,19 +155,8 @@ async fn create(
                 .map_err(|e| ApiError::Internal(format!("stored input: {e}")))?;
                 let reference = imageio::decode_image(&image, &limits)
                     .map_err(InputError::refused("reference image"))?;
-                imageio::check_aspect(
-                    "the reference image",
-                    (reference.width(), reference.height()),
-                    (original.width(), original.height()),
-                )
-                .map_err(|e| ApiError::InvalidInput(e.to_string()))?;
-                let (w, h) = (scene.width, scene.height);
-                let edit = edit::recolor_by_reference(
-                    &scene,
-                    &resize_rgb(&original, w, h),
-                    &resize_rgb(&reference, w, h),
-                    &params,
-                );
+                let edit =
+                    edit::recolor_by_reference_images(&scene, &reference, Some(&original), &params);
                 (EditKind::Reference, edit)
             }
         };
