@@ -10,8 +10,8 @@ use std::time::Duration;
 use clap::{Args, ValueEnum};
 
 use covec::service::{
-    self, Config, ConnectionLimits, InputLimits, QueueConfig, Scheduling, SignedUrlConfig,
-    WebhookConfig,
+    self, Config, ConnectionLimits, InputLimits, QueueConfig, RecordsAt, Scheduling,
+    SignedUrlConfig, WebhookConfig,
 };
 
 /// Storage, job slots and what one job may take: shared by `serve` and `worker`. Every option
@@ -32,6 +32,10 @@ pub struct JobArgs {
     /// shared by API replicas and `covec worker`s, instead of SQLite in the data directory.
     #[arg(long, env = "COVEC_DATABASE_URL", hide_env_values = true)]
     database_url: Option<String>,
+    /// Keep job records and the queue in this process's memory instead (`covec serve` only):
+    /// nothing but the job files survives a restart. For trials and tests.
+    #[arg(long, env = "COVEC_IN_MEMORY", conflicts_with = "database_url")]
+    in_memory: bool,
     /// Jobs run at once; the pipeline threads are shared out among them. With
     /// --database-url, `covec serve --workers 0` runs no job (an API replica).
     #[arg(long, env = "COVEC_WORKERS", default_value_t = QueueConfig::default().workers)]
@@ -114,7 +118,11 @@ impl JobArgs {
         let defaults = QueueConfig::default();
         config.data_dir = self.data_dir;
         config.object_store = self.object_store;
-        config.database_url = self.database_url;
+        config.records = match (self.database_url, self.in_memory) {
+            (Some(url), _) => RecordsAt::Database(url),
+            (None, true) => RecordsAt::Memory,
+            (None, false) => RecordsAt::DataDir,
+        };
         config.queue.workers = self.workers;
         config.queue.threads = self.threads.unwrap_or(defaults.threads);
         config.queue.job_time_limit = Duration::from_secs(self.job_time_limit);

@@ -11,6 +11,7 @@
 //! generated from the handlers' attributes).
 
 mod auth;
+mod backend;
 mod conn;
 mod derived;
 mod download;
@@ -35,8 +36,8 @@ mod submit;
 mod telemetry;
 mod view;
 mod webhooks;
-mod worker;
 
+pub use backend::RecordsAt;
 pub use conn::ConnectionLimits;
 pub use fair::{KeyLimits, Scheduling};
 pub use inputs::InputLimits;
@@ -67,7 +68,7 @@ use tower_http::trace::TraceLayer;
 
 use error::ApiError;
 use queue::{Queue, QueueError};
-use store::{Store, StoreError};
+use store::StoreError;
 use telemetry::Metrics;
 
 /// Everything `covec serve` can be told.
@@ -80,10 +81,10 @@ pub struct Config {
     /// Artefacts in this S3-compatible bucket (`s3://bucket/prefix`, credentials, region and
     /// endpoint from the usual `AWS_*` variables) instead of the data directory. Default none.
     pub object_store: Option<String>,
-    /// Job records, the queue and idempotency keys in this PostgreSQL database
-    /// (`postgres://…`), shared with other replicas and `covec worker`s, instead of SQLite in
-    /// the data directory. Default none.
-    pub database_url: Option<String>,
+    /// Where job records, the queue and idempotency keys live: SQLite in the data directory
+    /// (the default), a PostgreSQL database shared with other replicas and `covec worker`s, or
+    /// this process's memory.
+    pub records: RecordsAt,
     /// Workers, queue length, time limit, retention.
     pub queue: QueueConfig,
     /// What one job may send and ask for.
@@ -117,7 +118,7 @@ impl Default for Config {
             addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
             data_dir: PathBuf::from("covec-data"),
             object_store: None,
-            database_url: None,
+            records: RecordsAt::default(),
             queue: QueueConfig::default(),
             limits: InputLimits::default(),
             connections: ConnectionLimits::default(),
@@ -202,9 +203,9 @@ pub enum ServeError {
     /// The webhook settings.
     #[error(transparent)]
     Webhooks(#[from] WebhookConfigError),
-    /// Starting `covec worker`'s job slots.
-    #[error(transparent)]
-    Workers(#[from] worker::WorkerError),
+    /// `covec worker` without the shared backend.
+    #[error("workers need the PostgreSQL backend (--database-url)")]
+    WorkersNotShared,
     /// No API keys on an address other hosts can reach, without `allow_anonymous`.
     #[error(
         "refusing to serve {0} without API keys: anyone who reaches it could read every job; give --api-keys (COVEC_API_KEYS), listen on loopback, or pass --allow-anonymous (COVEC_ALLOW_ANONYMOUS=true)"
@@ -220,17 +221,18 @@ impl AppState {
                 return Err(ServeError::CorsOrigin(origin.clone()));
             }
         }
-        let store = Arc::new(Store::open(
-            &config.data_dir,
-            config.object_store.as_deref(),
-            config.database_url.as_deref(),
-        )?);
+        let (store, backend) = backend::open(&backend::Storage {
+            data_dir: &config.data_dir,
+            object_store: config.object_store.as_deref(),
+            records: &config.records,
+        })?;
         let metrics = Arc::new(Metrics::default());
         let queue = Queue::start(
             config.queue.clone(),
             config.limits.clone(),
             store,
             metrics.clone(),
+            backend,
         )?;
         let webhooks = webhooks::Webhooks::start(config.webhooks.clone(), queue.clone())?;
         webhooks.resume()?;
@@ -462,7 +464,7 @@ pub async fn serve(
     Ok(())
 }
 
-/// Runs `covec worker`: job slots on the shared backend ([`worker::Workers`]), without an
+/// Runs `covec worker`: job slots on the shared backend ([`backend::Workers`]), without an
 /// HTTP API, until SIGINT/SIGTERM; then running jobs finish for `shutdown_grace` or go back to
 /// the queue. Uses the data directory or object store, the database, the queue's workers,
 /// threads, time limit, retention and lease, the input and connection limits of `config`.
@@ -473,33 +475,33 @@ pub async fn work(
     ops_addr: Option<SocketAddr>,
     on_listening: impl FnOnce(SocketAddr),
 ) -> Result<(), ServeError> {
-    let Some(database_url) = config.database_url.as_deref() else {
-        return Err(ServeError::Workers(worker::WorkerError::NotShared));
+    let RecordsAt::Database(database_url) = &config.records else {
+        return Err(ServeError::WorkersNotShared);
     };
-    let store = Arc::new(Store::open(
-        &config.data_dir,
-        config.object_store.as_deref(),
-        Some(database_url),
-    )?);
     // Job durations are recorded here (for `/metrics` on the ops port, if any), so the samples
     // need upkeep.
     let metrics = Arc::new(Metrics::default());
     let metrics_upkeep = tokio::spawn(telemetry::upkeep(metrics.clone()));
-    let runner = Arc::new(runner::Runner {
-        decode_slots: Arc::new(tokio::sync::Semaphore::new(
-            config.limits.decode_slots.max(1),
-        )),
-        store,
-        limits: config.limits.clone(),
-        runtime: tokio::runtime::Handle::current(),
-        job_time_limit: config.queue.job_time_limit,
-        retention: config.queue.retention,
-        metrics: metrics.clone(),
-    });
+    let runner_of = |store| {
+        Arc::new(runner::Runner {
+            decode_slots: Arc::new(tokio::sync::Semaphore::new(
+                config.limits.decode_slots.max(1),
+            )),
+            store,
+            limits: config.limits.clone(),
+            runtime: tokio::runtime::Handle::current(),
+            job_time_limit: config.queue.job_time_limit,
+            retention: config.queue.retention,
+            metrics: metrics.clone(),
+        })
+    };
     let slots = config.queue.workers.max(1);
-    let workers = worker::Workers::start(
-        runner,
-        &worker::WorkerConfig {
+    let workers = backend::start_workers(
+        &config.data_dir,
+        config.object_store.as_deref(),
+        database_url,
+        runner_of,
+        &backend::WorkerConfig {
             slots,
             threads: config.queue.threads,
             lease: config.queue.lease,

@@ -1,7 +1,7 @@
 //! Running one job: decoding its stored inputs, the pipeline in the job's own thread pool,
-//! writing its results, and what the outcome makes of its record. Shared by both backends: the
-//! embedded queue's runner threads and the PostgreSQL workers ([`super::worker`]) each take a
-//! job their own way, call [`Runner::run`], and persist the record it leaves.
+//! writing its results, and what the outcome makes of its record. Shared by every backend: the
+//! local queue's runner threads and the shared backend's workers (`backend/shared/worker.rs`)
+//! each take a job their own way, call [`Runner::run`], and persist the record it leaves.
 
 use std::collections::BTreeMap;
 use std::panic::AssertUnwindSafe;

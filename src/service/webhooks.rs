@@ -37,10 +37,10 @@ use super::model::{
     Attempt, Delivery, DeliveryStatus, JobRecord, Status, Webhook, WebhookEvent, now_ms,
 };
 use super::queue::Queue;
+use super::queue::REAP_EVERY;
 use super::runner::JobEntry;
 use super::store::StoreError;
 use super::view::WebhookMessage;
-use super::worker::REAP_EVERY;
 
 /// Webhook settings of `covec serve`.
 #[derive(Clone, Debug)]

@@ -25,8 +25,10 @@ use serde_json::Value;
 /// `COVEC_TEST_BACKEND=postgres` it comes with the shared backend: its own throwaway
 /// PostgreSQL, which every [`Server`] started on it uses for its records (`--database-url`),
 /// and, when the run has an S3 server (`COVEC_TEST_S3_ENDPOINT`, started by scripts/test.sh),
-/// its own bucket there for the artefacts (`--object-store`). scripts/test.sh runs the service
-/// tests both ways; [`DataDir::read_job_file`] and its siblings reach a job's files on either.
+/// its own bucket there for the artefacts (`--object-store`). With `COVEC_TEST_BACKEND=memory`
+/// its servers keep records in memory (`--in-memory`), except on a directory made with
+/// [`DataDir::surviving_restarts`]. scripts/test.sh runs the service tests all three ways;
+/// [`DataDir::read_job_file`] and its siblings reach a job's files on each.
 pub struct DataDir(pub PathBuf, Option<Box<Shared>>);
 
 /// Where a data directory's servers keep job files.
@@ -65,8 +67,26 @@ struct BackendArgs {
 
 static BACKENDS: Mutex<Vec<BackendArgs>> = Mutex::new(Vec::new());
 
+/// The data directories whose servers keep records in memory.
+static IN_MEMORY: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// The backend the run asks for.
+fn test_backend() -> Option<String> {
+    std::env::var("COVEC_TEST_BACKEND").ok()
+}
+
 impl DataDir {
     pub fn new(name: &str) -> Self {
+        let dir = Self::with_files(name, Files::Backend);
+        if test_backend().as_deref() == Some("memory") {
+            lock(&IN_MEMORY).push(dir.0.clone());
+        }
+        dir
+    }
+
+    /// A data directory whose jobs outlive its server (for tests that start another on it):
+    /// on the memory run, the embedded backend's.
+    pub fn surviving_restarts(name: &str) -> Self {
         Self::with_files(name, Files::Backend)
     }
 
@@ -78,7 +98,7 @@ impl DataDir {
 
     fn with_files(name: &str, files: Files) -> Self {
         let mut dir = Self::plain(name);
-        if std::env::var("COVEC_TEST_BACKEND").as_deref() == Ok("postgres") {
+        if test_backend().as_deref() == Some("postgres") {
             let database = postgres::Postgres::start();
             let mut object_store = None;
             let mut env = Vec::new();
@@ -257,6 +277,7 @@ fn backend_args(data_dir: &Path, own_store: bool) -> (Vec<String>, Vec<(String, 
 impl Drop for DataDir {
     fn drop(&mut self) {
         lock(&BACKENDS).retain(|backend| backend.data_dir != self.0);
+        lock(&IN_MEMORY).retain(|dir| *dir != self.0);
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }
@@ -307,7 +328,11 @@ impl Server {
         env: &[(&str, &str)],
     ) -> Self {
         let log = std::fs::File::create(log_path).unwrap();
-        let (backend_args, backend_env) = backend_args(data_dir, args.contains(&"--object-store"));
+        let (mut backend_args, backend_env) =
+            backend_args(data_dir, args.contains(&"--object-store"));
+        if lock(&IN_MEMORY).iter().any(|dir| dir == data_dir) {
+            backend_args.push("--in-memory".to_owned());
+        }
         let mut child = Command::new(env!("CARGO_BIN_EXE_covec"))
             .args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
             .arg(data_dir)

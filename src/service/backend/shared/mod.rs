@@ -1,19 +1,31 @@
-//! The shared backend's queue: PostgreSQL is the truth and the memory a copy. The queue, leases
+//! The shared backend: job records, the queue and its leases in PostgreSQL ([`postgres`]),
+//! shared by API replicas and workers; artefacts in an object store or a shared directory.
+//!
+//! Its queue: PostgreSQL is the truth and the memory a copy. The queue, leases
 //! and idempotency keys are rows; jobs run in [`Workers`] (here or in `covec worker`
 //! processes); a follower thread brings every change made anywhere to the jobs in the copy (and
 //! the queued and running jobs into it) every [`FOLLOW_EVERY`], so polls, listings and SSE on
 //! any replica see jobs running on any worker.
+
+mod postgres;
+pub mod worker;
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
 
 use tracing::{info, warn};
 
-use super::{Admission, Queue, QueueConfig, QueueError, Refusal};
 use crate::service::model::{CancelReason, JobRecord, Status, Webhook};
+use crate::service::queue::state::{State, queue_full};
+use crate::service::queue::{
+    Admission, Backend, Queue, QueueConfig, QueueError, REAP_EVERY, Refusal,
+};
 use crate::service::runner::{JobEntry, Runner, lock};
-use crate::service::store::{Canceled, Change, Inserted, Postgres, StoreError, retry_transient};
-use crate::service::worker::{REAP_EVERY, WorkerConfig, Workers, reap_expired};
+use crate::service::store::{Records, StoreError, retry_transient};
+use crate::service::telemetry::Metrics;
+pub use postgres::Postgres;
+use postgres::{Canceled, Change, Inserted};
+use worker::{WorkerConfig, Workers, reap_expired};
 
 /// How often an API replica brings other processes' changes into its copy of the jobs (and
 /// reads the queue depth): what SSE and polls lag behind a worker.
@@ -23,50 +35,61 @@ const FOLLOW_EVERY: Duration = Duration::from_millis(200);
 /// purged.
 const TOMBSTONE_AGE: Duration = Duration::from_secs(3600);
 
-pub(super) struct Shared {
+pub struct Shared {
+    postgres: Arc<Postgres>,
     /// This process's job slots, if it runs any (`--workers 0`: an API replica).
     workers: Option<Arc<Workers>>,
     /// The (queued, running) counts of every process, as the follower last read them.
     depth: Arc<Mutex<(usize, usize)>>,
 }
 
-/// The database: a queue on the shared backend has its store's records there.
-fn postgres(queue: &Queue) -> &Postgres {
-    queue
-        .store()
-        .shared()
-        .expect("the shared backend keeps its records in PostgreSQL")
+impl Shared {
+    /// The queue over `postgres`, which the store holds as its records too.
+    pub fn new(postgres: Arc<Postgres>) -> Self {
+        Self {
+            postgres,
+            workers: None,
+            depth: Arc::new(Mutex::new((0, 0))),
+        }
+    }
 }
 
-impl Shared {
-    /// Starts this process's job slots, if `config` asks for any.
-    pub fn open(runner: &Arc<Runner>, config: &QueueConfig) -> Result<Self, QueueError> {
-        let workers = if config.workers > 0 {
-            Some(Workers::start(
+impl Backend for Shared {
+    /// Starts this process's job slots, if `config` asks for any (`--workers 0`: an API
+    /// replica).
+    fn open(
+        &mut self,
+        runner: &Arc<Runner>,
+        config: &mut QueueConfig,
+        _metrics: &Metrics,
+        _state: &mut State,
+    ) -> Result<(), QueueError> {
+        if config.workers > 0 {
+            self.workers = Some(Workers::start(
                 Arc::clone(runner),
+                Arc::clone(&self.postgres),
                 &WorkerConfig {
                     slots: config.workers,
                     threads: config.threads,
                     lease: config.lease,
                     scheduling: config.scheduling.clone(),
                 },
-            )?)
-        } else {
-            None
-        };
-        Ok(Self {
-            workers,
-            depth: Arc::new(Mutex::new((0, 0))),
-        })
+            )?);
+        }
+        Ok(())
     }
 
     /// Reads the jobs into the copy, starts the follower and sweeps old orphans.
-    pub fn start(&self, queue: &Arc<Queue>) -> Result<(), QueueError> {
-        let mark = follow(queue, &self.depth, None)?;
-        let (follower, depth) = (Arc::clone(queue), Arc::clone(&self.depth));
+    fn start(&self, queue: &Arc<Queue>) -> Result<(), QueueError> {
+        let mark = follow(queue, &self.postgres, &self.depth, None)?;
+        let (follower, postgres, depth) = (
+            Arc::clone(queue),
+            Arc::clone(&self.postgres),
+            Arc::clone(&self.depth),
+        );
         let handle = std::thread::Builder::new()
             .name("covec-follower".into())
-            .spawn(move || follow_changes(&follower, &depth, mark))?;
+            .spawn(move || follow_changes(&follower, &postgres, &depth, mark))?;
         lock(&queue.threads).push(handle);
         // Other replicas may be admitting jobs: only old directories are orphans.
         queue.sweep_orphans(queue.config.orphan_age);
@@ -74,12 +97,12 @@ impl Shared {
     }
 
     /// (queued, running) of every process.
-    pub fn depth(&self) -> (usize, usize) {
+    fn depth(&self, _state: &State) -> (usize, usize) {
         *lock(&self.depth)
     }
 
     /// Every job slot of this process alive (an API replica without slots is always ready).
-    pub fn is_ready(&self) -> bool {
+    fn is_ready(&self, _workers: usize) -> bool {
         self.workers
             .as_ref()
             .is_none_or(|workers| workers.is_ready())
@@ -87,13 +110,13 @@ impl Shared {
 
     /// Queues a job in the database (the unique index decides between replicas which of two
     /// submissions with one Idempotency-Key is first).
-    pub fn admit(queue: &Queue, record: JobRecord) -> Result<Admission, Refusal> {
+    fn admit(&self, queue: &Queue, record: JobRecord) -> Result<Admission, Refusal> {
         if lock(&queue.state).draining {
             return Err(Refusal::ShuttingDown);
         }
         let config = &queue.config;
         let key_limit = config.scheduling.limits_of(&record.client).queued;
-        match postgres(queue).insert(
+        match self.postgres.insert(
             &record,
             config.max_queued,
             key_limit,
@@ -108,7 +131,7 @@ impl Shared {
                 Ok(Admission::Replayed(entry))
             }
             Inserted::Existing(_) => Err(Refusal::IdempotencyMismatch),
-            Inserted::Full(queued) => Err(super::state::queue_full(config, &queue.metrics, queued)),
+            Inserted::Full(queued) => Err(queue_full(config, &queue.metrics, queued)),
             Inserted::KeyFull(queued) => {
                 let limit = key_limit.unwrap_or(queued);
                 let state = lock(&queue.state);
@@ -119,8 +142,8 @@ impl Shared {
 
     /// Cancels in the database: a queued job (whatever the copy says) ends there; a running
     /// one's worker stops it at its next heartbeat.
-    pub fn cancel(&self, queue: &Queue, entry: &Arc<JobEntry>) -> Result<bool, Refusal> {
-        let postgres = postgres(queue);
+    fn cancel(&self, queue: &Queue, entry: &Arc<JobEntry>) -> Result<bool, Refusal> {
+        let postgres = &self.postgres;
         let mut ended = entry.snapshot();
         ended.end(
             Status::Canceled,
@@ -148,7 +171,7 @@ impl Shared {
     }
 
     /// Stops this process's job slots, waiting for them until `deadline`.
-    pub fn drain(&self, deadline: Instant) {
+    fn drain(&self, deadline: Instant) {
         if let Some(workers) = &self.workers {
             workers.drain(deadline.saturating_duration_since(Instant::now()));
         }
@@ -156,8 +179,8 @@ impl Shared {
 
     /// Renews this replica's claims on webhook deliveries and takes those whose deliverer
     /// stopped: their jobs, to deliver from here.
-    pub fn take_over_deliveries(queue: &Queue) -> Result<Vec<Arc<JobEntry>>, StoreError> {
-        let postgres = postgres(queue);
+    fn deliveries_to_take_over(&self, queue: &Queue) -> Result<Vec<Arc<JobEntry>>, StoreError> {
+        let postgres = &self.postgres;
         let mut entries = Vec::new();
         for id in postgres.renew_deliveries()? {
             match queue.find(&id)? {
@@ -169,15 +192,15 @@ impl Shared {
     }
 
     /// Gives up this replica's claim on the job's deliveries.
-    pub fn deliveries_done(queue: &Queue, id: &str) -> Result<(), StoreError> {
+    fn deliveries_done(&self, _queue: &Queue, id: &str) -> Result<(), StoreError> {
         retry_transient("ending webhook deliveries", || {
-            postgres(queue).deliveries_done(id)
+            self.postgres.deliveries_done(id)
         })
     }
 
     /// Drops deleted jobs' rows once every process has seen them go.
-    pub fn purge(queue: &Queue) {
-        if let Err(error) = postgres(queue).purge_tombstones(TOMBSTONE_AGE) {
+    fn purge(&self, _queue: &Queue) {
+        if let Err(error) = self.postgres.purge_tombstones(TOMBSTONE_AGE) {
             warn!("purging deleted jobs: {error}");
         }
     }
@@ -187,10 +210,10 @@ impl Shared {
 /// depth; returns the mark for the next look.
 fn follow(
     queue: &Queue,
+    postgres: &Postgres,
     depth: &Mutex<(usize, usize)>,
     since: Option<SystemTime>,
 ) -> Result<SystemTime, StoreError> {
-    let postgres = postgres(queue);
     let (changes, mark) = postgres.changes(since)?;
     let counts = postgres.depth()?;
     let served = postgres.served()?;
@@ -227,7 +250,12 @@ fn follow(
 
 /// The follower thread: [`follow`] every [`FOLLOW_EVERY`], and takes back expired
 /// leases (when no worker is left to) until draining.
-fn follow_changes(queue: &Queue, depth: &Mutex<(usize, usize)>, mut mark: SystemTime) {
+fn follow_changes(
+    queue: &Queue,
+    postgres: &Postgres,
+    depth: &Mutex<(usize, usize)>,
+    mut mark: SystemTime,
+) {
     let mut last_reap = Instant::now();
     loop {
         {
@@ -240,13 +268,13 @@ fn follow_changes(queue: &Queue, depth: &Mutex<(usize, usize)>, mut mark: System
                 return;
             }
         }
-        match follow(queue, depth, Some(mark)) {
+        match follow(queue, postgres, depth, Some(mark)) {
             Ok(next) => mark = next,
             Err(error) => warn!("following the job database: {error}"),
         }
         if last_reap.elapsed() >= REAP_EVERY {
             last_reap = Instant::now();
-            reap_expired(postgres(queue), queue.config.retention);
+            reap_expired(postgres, queue.config.retention);
         }
     }
 }

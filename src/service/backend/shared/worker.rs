@@ -1,7 +1,8 @@
 //! Workers on the shared backend: job slots that claim queued jobs from PostgreSQL, run them
 //! and save what they left (`covec worker`, and `covec serve --database-url` with workers).
 //!
-//! A slot claims the queued job the fair rule picks ([`super::fair`]) under a lease ([`Postgres::claim`]); while the job runs
+//! A slot claims the queued job the fair rule picks ([`crate::service::fair`]) under a lease
+//! ([`Postgres::claim`]); while the job runs
 //! a heartbeat thread renews the lease, stores the record when it changed (progress and
 //! previews, at most every [`BEAT`]) and learns of a cancel or a delete. Expired leases (a
 //! worker that vanished) are reaped by every slot now and then ([`REAP_EVERY`]). On shutdown
@@ -15,10 +16,12 @@ use std::time::{Duration, Instant};
 
 use tracing::{info, info_span, warn};
 
-use super::fair::Scheduling;
-use super::model::{CancelReason, Problem};
-use super::runner::{JobEntry, JobFailure, Runner, Settled, job_pool, lock};
-use super::store::{Beat, Claim, MAX_ATTEMPTS, Postgres, retry_transient};
+use super::postgres::{Beat, Claim, MAX_ATTEMPTS, Postgres};
+use crate::service::fair::Scheduling;
+use crate::service::model::{CancelReason, Problem};
+use crate::service::queue::{QueueError, REAP_EVERY};
+use crate::service::runner::{JobEntry, JobFailure, Runner, Settled, job_pool, lock};
+use crate::service::store::retry_transient;
 
 /// Longest gap between two heartbeats of a running job: how stale its progress row may be,
 /// and how long a cancel from any replica waits before the worker sees it.
@@ -26,9 +29,6 @@ pub const BEAT: Duration = Duration::from_millis(500);
 
 /// How long an idle slot waits before it looks for a queued job again.
 const IDLE_POLL: Duration = Duration::from_millis(250);
-
-/// How often a slot (or an API replica's follower) takes back jobs whose lease expired.
-pub const REAP_EVERY: Duration = Duration::from_secs(2);
 
 /// Takes back the jobs whose lease expired ([`Postgres::reap`]): queued again, or failed with
 /// `workers-lost` after [`MAX_ATTEMPTS`]. Failures are logged: the next look tries again.
@@ -53,11 +53,9 @@ pub struct WorkerConfig {
     pub scheduling: Scheduling,
 }
 
-/// The default lease (see [`WorkerConfig::lease`]).
-pub const DEFAULT_LEASE: Duration = Duration::from_secs(30);
-
 pub struct Workers {
     runner: Arc<Runner>,
+    postgres: Arc<Postgres>,
     lease: Duration,
     scheduling: Scheduling,
     draining: AtomicBool,
@@ -70,25 +68,17 @@ pub struct Workers {
     handles: Mutex<Vec<JoinHandle<()>>>,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum WorkerError {
-    #[error("worker pool: {0}")]
-    Pool(#[from] rayon::ThreadPoolBuildError),
-    #[error("worker thread: {0}")]
-    Thread(#[from] std::io::Error),
-    #[error("workers need the PostgreSQL backend (--database-url)")]
-    NotShared,
-}
-
 impl Workers {
     /// Starts the slots (none when `config.slots` is 0).
-    pub fn start(runner: Arc<Runner>, config: &WorkerConfig) -> Result<Arc<Self>, WorkerError> {
-        if runner.store.shared().is_none() {
-            return Err(WorkerError::NotShared);
-        }
+    pub fn start(
+        runner: Arc<Runner>,
+        postgres: Arc<Postgres>,
+        config: &WorkerConfig,
+    ) -> Result<Arc<Self>, QueueError> {
         let threads_per_job = (config.threads / config.slots.max(1)).max(1);
         let workers = Arc::new(Self {
             runner,
+            postgres,
             lease: config.lease.max(BEAT * 2),
             scheduling: config.scheduling.clone(),
             draining: AtomicBool::new(false),
@@ -126,13 +116,6 @@ impl Workers {
     /// Every slot is alive and taking work.
     pub fn is_ready(&self) -> bool {
         !self.draining.load(Ordering::SeqCst) && self.alive.load(Ordering::SeqCst) == self.slots
-    }
-
-    fn postgres(&self) -> &Postgres {
-        self.runner
-            .store
-            .shared()
-            .expect("checked in Workers::start")
     }
 
     /// Stops taking jobs, lets running ones finish for up to `grace`, then stops them (they
@@ -179,9 +162,9 @@ impl Workers {
         while !self.draining.load(Ordering::SeqCst) {
             if last_reap.is_none_or(|at| at.elapsed() >= REAP_EVERY) {
                 last_reap = Some(Instant::now());
-                reap_expired(self.postgres(), self.runner.retention);
+                reap_expired(&self.postgres, self.runner.retention);
             }
-            match self.postgres().claim(self.lease, &self.scheduling) {
+            match self.postgres.claim(self.lease, &self.scheduling) {
                 Ok(Some(claim)) => self.run_claim(claim, pool),
                 Ok(None) => {
                     self.pause(IDLE_POLL);
@@ -242,7 +225,7 @@ impl Workers {
             return;
         }
         let saved = retry_transient("saving the outcome", || {
-            self.postgres().settle(token, &entry.snapshot())
+            self.postgres.settle(token, &entry.snapshot())
         });
         match saved {
             // One line per terminal write: what the chaos checker counts.
@@ -271,7 +254,7 @@ impl Workers {
             let record = entry.snapshot();
             let changed = !ended.load(Ordering::SeqCst) && stored.as_ref() != Some(&record);
             let beat =
-                self.postgres()
+                self.postgres
                     .heartbeat(token, self.lease, changed.then_some(&record), &entry.id);
             match beat {
                 Ok(Beat::Held { cancel }) => {

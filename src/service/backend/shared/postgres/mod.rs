@@ -11,7 +11,7 @@
 //!
 //! tokio-postgres with a deadpool pool rather than sqlx: plain SQL strings checked by the
 //! tests against a real server, no macros and no database or offline query cache at build
-//! time, and a small dependency tree. Like [`super::artefacts`]'s bucket, the client runs on
+//! time, and a small dependency tree. Like the object store's bucket, the client runs on
 //! a small runtime of its own: every caller is blocking code (a runner, a `spawn_blocking`
 //! task, start-up), which hands each request over and waits for it.
 //!
@@ -28,27 +28,28 @@ use tokio_postgres::Row;
 mod leases;
 mod replicas;
 
-use super::error::{StoreError, with_sources};
-use super::parse_record;
-use super::postgres_tls::TlsSettings;
+mod tls;
+
 use crate::service::model::{JobRecord, Status};
+use crate::service::store::{Records, StoreError, parse_record, with_sources};
 pub use leases::{Beat, Claim, MAX_ATTEMPTS};
 pub use replicas::{Canceled, Inserted};
+use tls::TlsSettings;
 
 /// The schema, version by version; a version once released is never edited.
 const MIGRATIONS: [(i32, &str); 4] = [
-    (1, include_str!("../../../../migrations/0001_jobs.sql")),
+    (1, include_str!("../../../../../migrations/0001_jobs.sql")),
     (
         2,
-        include_str!("../../../../migrations/0002_webhook_deliveries.sql"),
+        include_str!("../../../../../migrations/0002_webhook_deliveries.sql"),
     ),
     (
         3,
-        include_str!("../../../../migrations/0003_fair_queue.sql"),
+        include_str!("../../../../../migrations/0003_fair_queue.sql"),
     ),
     (
         4,
-        include_str!("../../../../migrations/0004_bounded_records.sql"),
+        include_str!("../../../../../migrations/0004_bounded_records.sql"),
     ),
 ];
 
@@ -197,20 +198,6 @@ impl Postgres {
         })
     }
 
-    /// The live job `id`.
-    pub fn get(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
-        let id = id.to_owned();
-        self.run(move |client| async move {
-            let row = client
-                .query_opt(
-                    &format!("SELECT {RECORD_COLUMNS} FROM jobs WHERE id = $1 AND NOT deleted"),
-                    &[&id],
-                )
-                .await?;
-            row.as_ref().map(record_of).transpose()
-        })
-    }
-
     /// Every job changed after `since` (the queued and running jobs when `None`), and the mark to pass next
     /// time. The mark trails the database clock by a margin, so a change committed just after
     /// a statement that began earlier is still seen; a change may come twice.
@@ -296,9 +283,38 @@ impl Postgres {
         })
     }
 
+    /// Removes the rows of jobs deleted more than `age` ago (long after any worker saw it).
+    pub fn purge_tombstones(&self, age: Duration) -> Result<u64, StoreError> {
+        self.run(move |client| async move {
+            Ok(client
+                .execute(
+                    "DELETE FROM jobs WHERE deleted
+                     AND updated_at < clock_timestamp() - make_interval(secs => $1)",
+                    &[&age.as_secs_f64()],
+                )
+                .await?)
+        })
+    }
+}
+
+impl Records for Postgres {
+    /// The live job `id`.
+    fn get(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
+        let id = id.to_owned();
+        self.run(move |client| async move {
+            let row = client
+                .query_opt(
+                    &format!("SELECT {RECORD_COLUMNS} FROM jobs WHERE id = $1 AND NOT deleted"),
+                    &[&id],
+                )
+                .await?;
+            row.as_ref().map(record_of).transpose()
+        })
+    }
+
     /// Up to `limit` ids of `owner`'s live jobs (with `status` if given) strictly older than
     /// `before`, newest first; one index range scan.
-    pub fn list_ids(
+    fn list_ids(
         &self,
         owner: &Option<String>,
         status: Option<Status>,
@@ -332,8 +348,7 @@ impl Postgres {
         })
     }
 
-    /// See [`super::Store::idempotent`].
-    pub fn idempotent(
+    fn idempotent(
         &self,
         owner: &Option<String>,
         key: &str,
@@ -345,8 +360,7 @@ impl Postgres {
         )
     }
 
-    /// See [`super::Store::drop_idempotency_keys`].
-    pub fn drop_idempotency_keys(&self, created_before: u64) -> Result<usize, StoreError> {
+    fn drop_idempotency_keys(&self, created_before: u64) -> Result<usize, StoreError> {
         self.run(move |client| async move {
             let dropped = client
                 .execute(
@@ -361,8 +375,7 @@ impl Postgres {
         })
     }
 
-    /// See [`super::Store::results_due`].
-    pub fn results_due(&self, now: u64, limit: usize) -> Result<Vec<String>, StoreError> {
+    fn results_due(&self, now: u64, limit: usize) -> Result<Vec<String>, StoreError> {
         self.run(move |client| async move {
             let rows = client
                 .query(
@@ -376,8 +389,7 @@ impl Postgres {
         })
     }
 
-    /// See [`super::Store::expire_records`]. Replicas expiring at once each take other rows.
-    pub fn expire_records(
+    fn expire_records(
         &self,
         ended_before: u64,
         expired_before: u64,
@@ -411,8 +423,7 @@ impl Postgres {
         })
     }
 
-    /// See [`super::Store::expired_owner`].
-    pub fn expired_owner(&self, id: &str) -> Result<Option<Option<String>>, StoreError> {
+    fn expired_owner(&self, id: &str) -> Result<Option<Option<String>>, StoreError> {
         let id = id.to_owned();
         self.run(move |client| async move {
             let row = client
@@ -423,13 +434,13 @@ impl Postgres {
     }
 
     /// Whether a live job `id` exists (what the orphan sweep keeps).
-    pub fn has_record(&self, id: &str) -> Result<bool, StoreError> {
+    fn has_record(&self, id: &str) -> Result<bool, StoreError> {
         Ok(self.get(id)?.is_some())
     }
 
     /// Marks a job deleted for good: the commit point of a DELETE. Its worker, if it runs,
     /// learns it at its next heartbeat; the row goes in [`Postgres::purge_tombstones`].
-    pub fn tombstone(&self, id: &str) -> Result<(), StoreError> {
+    fn tombstone(&self, id: &str) -> Result<(), StoreError> {
         let id = id.to_owned();
         self.run(move |client| async move {
             client
@@ -439,22 +450,9 @@ impl Postgres {
         })
     }
 
-    /// Removes the rows of jobs deleted more than `age` ago (long after any worker saw it).
-    pub fn purge_tombstones(&self, age: Duration) -> Result<u64, StoreError> {
-        self.run(move |client| async move {
-            Ok(client
-                .execute(
-                    "DELETE FROM jobs WHERE deleted
-                     AND updated_at < clock_timestamp() - make_interval(secs => $1)",
-                    &[&age.as_secs_f64()],
-                )
-                .await?)
-        })
-    }
-
     /// Writes the record of a job no worker holds (a queued or ended one), keeping its stored
     /// webhook deliveries.
-    pub fn save_idle(&self, record: &JobRecord) -> Result<(), StoreError> {
+    fn save(&self, record: &JobRecord) -> Result<(), StoreError> {
         let (id, json) = (record.id.clone(), to_json(record));
         self.run(move |client| async move {
             client
@@ -471,7 +469,7 @@ impl Postgres {
     }
 
     /// Stores a job's webhook deliveries (the one field its delivering replica writes).
-    pub fn save_webhook(&self, record: &JobRecord) -> Result<(), StoreError> {
+    fn save_webhook(&self, record: &JobRecord) -> Result<(), StoreError> {
         let id = record.id.clone();
         let json = serde_json::to_string(&record.webhook).expect("a webhook always serialises");
         self.run(move |client| async move {
@@ -487,7 +485,7 @@ impl Postgres {
     }
 
     /// Checks that the database answers (for `/readyz`).
-    pub fn check(&self) -> Result<(), StoreError> {
+    fn check(&self) -> Result<(), StoreError> {
         self.run(|client| async move {
             client.query_one("SELECT 1", &[]).await?;
             Ok(())

@@ -31,7 +31,7 @@ use rustls::{Error as TlsError, SignatureScheme};
 use tokio_postgres::config::SslMode;
 use tokio_postgres_rustls::MakeRustlsConnect;
 
-use super::error::StoreError;
+use crate::service::store::StoreError;
 
 /// libpq's `sslmode` values that tokio-postgres accepts or that this module adds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -7,7 +7,7 @@ use std::time::Duration;
 use super::{CLAIM_LOCK, KEEP_WEBHOOK, Postgres, RECORD_COLUMNS, record_of, to_json};
 use crate::service::fair::Scheduling;
 use crate::service::model::{JobRecord, Problem, Status};
-use crate::service::store::error::StoreError;
+use crate::service::store::StoreError;
 
 /// Runs of one job, the first included, before a job whose worker keeps vanishing is failed
 /// (`workers-lost`): one lost worker is bad luck, three in a row is likely the job itself.

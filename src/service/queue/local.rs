@@ -1,5 +1,5 @@
-//! The embedded backend's queue: records in SQLite in the data directory, written through on
-//! every status change, and jobs run here.
+//! The queue of a backend whose jobs all run in this process, over records only it writes
+//! (the embedded and the memory backend): written through on every status change.
 //!
 //! `workers` runner threads take queued jobs by the fair rule ([`crate::service::fair`]); each
 //! runs its job's pipeline inside its own rayon pool (`threads / workers` threads), so the async
@@ -14,26 +14,41 @@ use std::time::Duration;
 use tracing::{info, info_span, warn};
 
 use super::state::State;
-use super::{Admission, Queue, QueueError, Refusal};
+use super::{Admission, Backend, Queue, QueueConfig, QueueError, Refusal};
 use crate::service::model::{CancelReason, JobRecord, Status, Webhook, now_ms};
-use crate::service::runner::{JobEntry, Settled, job_pool, lock};
-use crate::service::store::{Store, StoreError, retry_transient};
+use crate::service::runner::{JobEntry, Runner, Settled, job_pool, lock};
+use crate::service::store::{LocalRecords, StoreError, retry_transient};
 use crate::service::telemetry::Metrics;
 
-pub(super) struct Embedded {
+pub struct Local {
+    records: Arc<dyn LocalRecords>,
     /// Runner threads still taking jobs.
     runners_alive: Arc<AtomicUsize>,
 }
 
-impl Embedded {
+impl Local {
+    /// The queue over `records`, which the store holds too.
+    pub fn new(records: Arc<dyn LocalRecords>) -> Self {
+        Self {
+            records,
+            runners_alive: Arc::new(AtomicUsize::new(0)),
+        }
+    }
+}
+
+impl Backend for Local {
     /// Loads the queued and running jobs into `state`, queued again (a run cut short by the
-    /// stop starts over).
-    pub fn recover(
-        store: &Store,
+    /// stop starts over); at least one runner.
+    fn open(
+        &mut self,
+        runner: &Arc<Runner>,
+        config: &mut QueueConfig,
         metrics: &Metrics,
         state: &mut State,
-    ) -> Result<Self, QueueError> {
-        let recovered = store.recover()?;
+    ) -> Result<(), QueueError> {
+        config.workers = config.workers.max(1);
+        let store = &runner.store;
+        let recovered = self.records.recover()?;
         metrics.quarantined(recovered.quarantined.len());
         for mut record in recovered.records {
             info!(job_id = %record.id, "re-queued after restart");
@@ -42,13 +57,11 @@ impl Embedded {
             store.save(&record)?;
             state.remember(JobEntry::new(record));
         }
-        Ok(Self {
-            runners_alive: Arc::new(AtomicUsize::new(0)),
-        })
+        Ok(())
     }
 
     /// Sweeps orphans and starts the runner threads.
-    pub fn start(&self, queue: &Arc<Queue>) -> Result<(), QueueError> {
+    fn start(&self, queue: &Arc<Queue>) -> Result<(), QueueError> {
         // Nothing is being admitted yet: every directory without a record is an orphan.
         let swept = queue.sweep_orphans(Duration::ZERO);
         if swept > 0 {
@@ -74,14 +87,18 @@ impl Embedded {
         Ok(())
     }
 
+    fn depth(&self, state: &State) -> (usize, usize) {
+        state.fair.depth()
+    }
+
     /// Every runner alive.
-    pub fn is_ready(&self, workers: usize) -> bool {
+    fn is_ready(&self, workers: usize) -> bool {
         self.runners_alive.load(Ordering::SeqCst) == workers
     }
 
     /// Queues the job, or replays the earlier one with its Idempotency-Key. The key is looked
     /// up under the queue lock, so of two submissions with one key only the first is admitted.
-    pub fn admit(queue: &Queue, record: JobRecord) -> Result<Admission, Refusal> {
+    fn admit(&self, queue: &Queue, record: JobRecord) -> Result<Admission, Refusal> {
         let mut state = lock(&queue.state);
         if let Some(idempotency) = &record.idempotency {
             let earlier = queue.store().idempotent(
@@ -110,7 +127,7 @@ impl Embedded {
     }
 
     /// Ends a queued job at once; asks a running one to stop (true: still stopping).
-    pub fn cancel(queue: &Queue, entry: &Arc<JobEntry>) -> Result<bool, Refusal> {
+    fn cancel(&self, queue: &Queue, entry: &Arc<JobEntry>) -> Result<bool, Refusal> {
         let mut state = lock(&queue.state);
         let status = entry.record.borrow().status;
         match status {
@@ -136,9 +153,9 @@ impl Embedded {
 
     /// The jobs whose webhook deliveries are unfinished, oldest first (to resume them after a
     /// start). Records marked so whose deliveries are all done lose the mark.
-    pub fn unfinished_deliveries(queue: &Queue) -> Result<Vec<Arc<JobEntry>>, StoreError> {
+    fn deliveries_to_resume(&self, queue: &Queue) -> Result<Vec<Arc<JobEntry>>, StoreError> {
         let mut entries = Vec::new();
-        for record in queue.store().webhooks_pending()? {
+        for record in self.records.webhooks_pending()? {
             if record.webhook.as_ref().is_some_and(Webhook::unfinished) {
                 entries.push(lock(&queue.state).remember(JobEntry::new(record)));
             } else {
@@ -146,6 +163,11 @@ impl Embedded {
             }
         }
         Ok(entries)
+    }
+
+    /// An unreadable record was moved to the quarantine.
+    fn met_unreadable(&self, metrics: &Metrics) {
+        metrics.quarantined(1);
     }
 }
 

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use super::{CLIENT_LOCK, DROP_KEY, KEEP_WEBHOOK, Postgres, by_key, to_json};
 use crate::service::model::JobRecord;
-use crate::service::store::error::StoreError;
+use crate::service::store::StoreError;
 
 /// How long an API replica's claim on delivering a job's webhook events holds unless renewed
 /// ([`Postgres::renew_deliveries`]): when the replica stops, another takes the deliveries over

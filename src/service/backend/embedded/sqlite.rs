@@ -6,9 +6,8 @@ use std::sync::{Mutex, MutexGuard};
 
 use rusqlite::{Connection, OptionalExtension, params};
 
-use super::error::StoreError;
-use super::{Recovered, parse_record};
 use crate::service::model::{JobRecord, Status, Webhook, now_ms};
+use crate::service::store::{LocalRecords, Records, Recovered, StoreError, parse_record};
 
 /// One writer connection, and one for listings.
 pub struct Sqlite {
@@ -100,21 +99,178 @@ impl Sqlite {
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
+}
 
-    /// See [`super::Store::save`].
-    pub fn save(&self, record: &JobRecord) -> Result<(), StoreError> {
+impl Records for Sqlite {
+    fn save(&self, record: &JobRecord) -> Result<(), StoreError> {
         save_row(&self.db(), record)
     }
 
-    /// See [`super::Store::tombstone`].
-    pub fn tombstone(&self, id: &str) -> Result<(), StoreError> {
+    /// The whole record: this process makes the deliveries and writes the rest.
+    fn save_webhook(&self, record: &JobRecord) -> Result<(), StoreError> {
+        save_row(&self.db(), record)
+    }
+
+    fn tombstone(&self, id: &str) -> Result<(), StoreError> {
         self.db()
             .execute("UPDATE jobs SET deleted = 1 WHERE id = ?1", params![id])?;
         Ok(())
     }
 
-    /// See [`super::Store::recover`].
-    pub fn recover(&self) -> Result<Recovered, StoreError> {
+    fn get(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
+        let db = self.db();
+        let json: Option<String> = db
+            .prepare_cached("SELECT record FROM jobs WHERE id = ?1 AND deleted = 0")?
+            .query_row(params![id], |row| row.get(0))
+            .optional()?;
+        let Some(json) = json else {
+            return Ok(None);
+        };
+        match parse_record(id, &json) {
+            Ok(record) => Ok(Some(record)),
+            Err(error) => {
+                quarantine(&db, id, &json, &error)?;
+                Err(error)
+            }
+        }
+    }
+
+    fn idempotent(
+        &self,
+        owner: &Option<String>,
+        key: &str,
+        created_since: u64,
+    ) -> Result<Option<JobRecord>, StoreError> {
+        let id: Option<String> = self
+            .db()
+            .prepare_cached(
+                "SELECT id FROM jobs INDEXED BY jobs_by_idempotency_key
+                 WHERE owner IS ?1 AND idempotency_key = ?2 AND created_at >= ?3 AND deleted = 0
+                 ORDER BY id DESC LIMIT 1",
+            )?
+            .query_row(params![owner, key, created_since as i64], |row| row.get(0))
+            .optional()?;
+        match id {
+            Some(id) => self.get(&id),
+            None => Ok(None),
+        }
+    }
+
+    fn drop_idempotency_keys(&self, created_before: u64) -> Result<usize, StoreError> {
+        Ok(self.db().execute(
+            "UPDATE jobs INDEXED BY jobs_keys_by_age
+             SET idempotency_key = NULL, record = CASE WHEN json_valid(record)
+                 THEN json_remove(record, '$.idempotency') ELSE record END
+             WHERE idempotency_key IS NOT NULL AND created_at < ?1",
+            params![created_before as i64],
+        )?)
+    }
+
+    fn results_due(&self, now: u64, limit: usize) -> Result<Vec<String>, StoreError> {
+        Ok(self
+            .db()
+            .prepare_cached(
+                "SELECT id FROM jobs INDEXED BY jobs_results_due
+                 WHERE results_expire_at IS NOT NULL AND results_expire_at <= ?1 AND deleted = 0
+                 LIMIT ?2",
+            )?
+            .query_map(params![now as i64, limit as i64], |row| row.get(0))?
+            .collect::<Result<_, _>>()?)
+    }
+
+    fn expire_records(
+        &self,
+        ended_before: u64,
+        expired_before: u64,
+        limit: usize,
+    ) -> Result<Vec<String>, StoreError> {
+        let connection = self.db();
+        let db = connection.unchecked_transaction()?;
+        let ids: Vec<String> = db
+            .prepare_cached(
+                "SELECT id FROM jobs INDEXED BY jobs_by_completion
+                 WHERE status IN ('succeeded', 'failed', 'canceled') AND completed_at < ?1
+                     AND deleted = 0
+                 LIMIT ?2",
+            )?
+            .query_map(params![ended_before as i64, limit as i64], |row| row.get(0))?
+            .collect::<Result<_, _>>()?;
+        let now = now_ms() as i64;
+        for id in &ids {
+            db.execute(
+                "INSERT OR REPLACE INTO expired_jobs (id, owner, expired_at)
+                 SELECT id, owner, ?2 FROM jobs WHERE id = ?1",
+                params![id, now],
+            )?;
+            db.execute("DELETE FROM jobs WHERE id = ?1", params![id])?;
+        }
+        db.execute(
+            "DELETE FROM expired_jobs WHERE expired_at < ?1",
+            params![expired_before as i64],
+        )?;
+        db.commit()?;
+        Ok(ids)
+    }
+
+    fn expired_owner(&self, id: &str) -> Result<Option<Option<String>>, StoreError> {
+        Ok(self
+            .db()
+            .prepare_cached("SELECT owner FROM expired_jobs WHERE id = ?1")?
+            .query_row(params![id], |row| row.get(0))
+            .optional()?)
+    }
+
+    fn has_record(&self, id: &str) -> Result<bool, StoreError> {
+        Ok(self.db().query_row(
+            "SELECT EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND deleted = 0)
+                 OR EXISTS (SELECT 1 FROM quarantine WHERE id = ?1)",
+            params![id],
+            |row| row.get(0),
+        )?)
+    }
+
+    fn list_ids(
+        &self,
+        owner: &Option<String>,
+        status: Option<Status>,
+        before: &str,
+        limit: usize,
+    ) -> Result<Vec<String>, StoreError> {
+        let reader = self
+            .reader
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let ids = match status {
+            Some(status) => reader
+                .prepare_cached(
+                    "SELECT id FROM jobs INDEXED BY jobs_by_owner_status
+                     WHERE owner IS ?1 AND status = ?2 AND id < ?3 AND deleted = 0
+                     ORDER BY id DESC LIMIT ?4",
+                )?
+                .query_map(params![owner, status.name(), before, limit as i64], |row| {
+                    row.get(0)
+                })?
+                .collect::<Result<_, _>>()?,
+            None => reader
+                .prepare_cached(
+                    "SELECT id FROM jobs INDEXED BY jobs_by_owner
+                     WHERE owner IS ?1 AND id < ?2 AND deleted = 0
+                     ORDER BY id DESC LIMIT ?3",
+                )?
+                .query_map(params![owner, before, limit as i64], |row| row.get(0))?
+                .collect::<Result<_, _>>()?,
+        };
+        Ok(ids)
+    }
+
+    fn check(&self) -> Result<(), StoreError> {
+        self.db().query_row("SELECT 1", [], |_| Ok(()))?;
+        Ok(())
+    }
+}
+
+impl LocalRecords for Sqlite {
+    fn recover(&self) -> Result<Recovered, StoreError> {
         let connection = self.db();
         // One transaction: a backfill of many rows is one commit, not one each.
         let db = connection.unchecked_transaction()?;
@@ -158,117 +314,7 @@ impl Sqlite {
         Ok(recovered)
     }
 
-    /// See [`super::Store::get`].
-    pub fn get(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
-        let db = self.db();
-        let json: Option<String> = db
-            .prepare_cached("SELECT record FROM jobs WHERE id = ?1 AND deleted = 0")?
-            .query_row(params![id], |row| row.get(0))
-            .optional()?;
-        let Some(json) = json else {
-            return Ok(None);
-        };
-        match parse_record(id, &json) {
-            Ok(record) => Ok(Some(record)),
-            Err(error) => {
-                quarantine(&db, id, &json, &error)?;
-                Err(error)
-            }
-        }
-    }
-
-    /// See [`super::Store::idempotent`].
-    pub fn idempotent(
-        &self,
-        owner: &Option<String>,
-        key: &str,
-        created_since: u64,
-    ) -> Result<Option<JobRecord>, StoreError> {
-        let id: Option<String> = self
-            .db()
-            .prepare_cached(
-                "SELECT id FROM jobs INDEXED BY jobs_by_idempotency_key
-                 WHERE owner IS ?1 AND idempotency_key = ?2 AND created_at >= ?3 AND deleted = 0
-                 ORDER BY id DESC LIMIT 1",
-            )?
-            .query_row(params![owner, key, created_since as i64], |row| row.get(0))
-            .optional()?;
-        match id {
-            Some(id) => self.get(&id),
-            None => Ok(None),
-        }
-    }
-
-    /// See [`super::Store::drop_idempotency_keys`].
-    pub fn drop_idempotency_keys(&self, created_before: u64) -> Result<usize, StoreError> {
-        Ok(self.db().execute(
-            "UPDATE jobs INDEXED BY jobs_keys_by_age
-             SET idempotency_key = NULL, record = CASE WHEN json_valid(record)
-                 THEN json_remove(record, '$.idempotency') ELSE record END
-             WHERE idempotency_key IS NOT NULL AND created_at < ?1",
-            params![created_before as i64],
-        )?)
-    }
-
-    /// See [`super::Store::results_due`].
-    pub fn results_due(&self, now: u64, limit: usize) -> Result<Vec<String>, StoreError> {
-        Ok(self
-            .db()
-            .prepare_cached(
-                "SELECT id FROM jobs INDEXED BY jobs_results_due
-                 WHERE results_expire_at IS NOT NULL AND results_expire_at <= ?1 AND deleted = 0
-                 LIMIT ?2",
-            )?
-            .query_map(params![now as i64, limit as i64], |row| row.get(0))?
-            .collect::<Result<_, _>>()?)
-    }
-
-    /// See [`super::Store::expire_records`].
-    pub fn expire_records(
-        &self,
-        ended_before: u64,
-        expired_before: u64,
-        limit: usize,
-    ) -> Result<Vec<String>, StoreError> {
-        let connection = self.db();
-        let db = connection.unchecked_transaction()?;
-        let ids: Vec<String> = db
-            .prepare_cached(
-                "SELECT id FROM jobs INDEXED BY jobs_by_completion
-                 WHERE status IN ('succeeded', 'failed', 'canceled') AND completed_at < ?1
-                     AND deleted = 0
-                 LIMIT ?2",
-            )?
-            .query_map(params![ended_before as i64, limit as i64], |row| row.get(0))?
-            .collect::<Result<_, _>>()?;
-        let now = now_ms() as i64;
-        for id in &ids {
-            db.execute(
-                "INSERT OR REPLACE INTO expired_jobs (id, owner, expired_at)
-                 SELECT id, owner, ?2 FROM jobs WHERE id = ?1",
-                params![id, now],
-            )?;
-            db.execute("DELETE FROM jobs WHERE id = ?1", params![id])?;
-        }
-        db.execute(
-            "DELETE FROM expired_jobs WHERE expired_at < ?1",
-            params![expired_before as i64],
-        )?;
-        db.commit()?;
-        Ok(ids)
-    }
-
-    /// See [`super::Store::expired_owner`].
-    pub fn expired_owner(&self, id: &str) -> Result<Option<Option<String>>, StoreError> {
-        Ok(self
-            .db()
-            .prepare_cached("SELECT owner FROM expired_jobs WHERE id = ?1")?
-            .query_row(params![id], |row| row.get(0))
-            .optional()?)
-    }
-
-    /// See [`super::Store::webhooks_pending`].
-    pub fn webhooks_pending(&self) -> Result<Vec<JobRecord>, StoreError> {
+    fn webhooks_pending(&self) -> Result<Vec<JobRecord>, StoreError> {
         let rows: Vec<(String, String)> = self
             .db()
             .prepare(
@@ -285,57 +331,6 @@ impl Sqlite {
             }
         }
         Ok(records)
-    }
-
-    /// See [`super::Store::has_record`].
-    pub fn has_record(&self, id: &str) -> Result<bool, StoreError> {
-        Ok(self.db().query_row(
-            "SELECT EXISTS (SELECT 1 FROM jobs WHERE id = ?1 AND deleted = 0)
-                 OR EXISTS (SELECT 1 FROM quarantine WHERE id = ?1)",
-            params![id],
-            |row| row.get(0),
-        )?)
-    }
-
-    /// See [`super::Store::list_ids`] (`before` given).
-    pub fn list_ids(
-        &self,
-        owner: &Option<String>,
-        status: Option<Status>,
-        before: &str,
-        limit: usize,
-    ) -> Result<Vec<String>, StoreError> {
-        let reader = self
-            .reader
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner());
-        let ids = match status {
-            Some(status) => reader
-                .prepare_cached(
-                    "SELECT id FROM jobs INDEXED BY jobs_by_owner_status
-                     WHERE owner IS ?1 AND status = ?2 AND id < ?3 AND deleted = 0
-                     ORDER BY id DESC LIMIT ?4",
-                )?
-                .query_map(params![owner, status.name(), before, limit as i64], |row| {
-                    row.get(0)
-                })?
-                .collect::<Result<_, _>>()?,
-            None => reader
-                .prepare_cached(
-                    "SELECT id FROM jobs INDEXED BY jobs_by_owner
-                     WHERE owner IS ?1 AND id < ?2 AND deleted = 0
-                     ORDER BY id DESC LIMIT ?3",
-                )?
-                .query_map(params![owner, before, limit as i64], |row| row.get(0))?
-                .collect::<Result<_, _>>()?,
-        };
-        Ok(ids)
-    }
-
-    /// See [`super::Store::check`].
-    pub fn check(&self) -> Result<(), StoreError> {
-        self.db().query_row("SELECT 1", [], |_| Ok(()))?;
-        Ok(())
     }
 }
 
