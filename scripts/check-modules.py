@@ -43,10 +43,10 @@ SERVICE_LAYERS = [
     ["model", "view", "rate", "fair", "conn"],
     ["store"],
     ["inputs", "telemetry"],
-    ["runner", "queue", "webhooks", "derived"],
+    ["job", "runner", "queue", "webhooks", "derived"],
     ["backend"],
-    ["error", "auth", "signed", "submit", "download", "jobs", "results", "edits", "ops", "limits",
-     "openapi", "fuzzing", ""],
+    ["error", "auth", "signed", "submit", "download", "jobs", "events", "results", "edits", "ops", "limits",
+     "openapi", "fuzzing", "state", "serve", ""],
 ]
 SERVICE_RANK = {name: rank for rank, names in enumerate(SERVICE_LAYERS) for name in names}
 

@@ -14,9 +14,9 @@ use axum::routing::get;
 use super::backend::Workers;
 use super::error::ApiError;
 use super::model::Problem;
+use super::state::{AppState, Endpoint, endpoint};
 use super::store::StoreError;
 use super::telemetry::{Metrics, QueueGauges};
-use super::{AppState, Endpoint, endpoint};
 
 /// The liveness probe's path, on the API port and on a worker's `--ops-addr`.
 pub const LIVENESS_PATH: &str = "/healthz";

@@ -33,12 +33,12 @@ use serde::Serialize;
 use sha2::Sha256;
 use tracing::{info, warn};
 
+use super::job::JobEntry;
 use super::model::{
     Attempt, Delivery, DeliveryStatus, JobRecord, Status, Webhook, WebhookEvent, now_ms,
 };
 use super::queue::Queue;
 use super::queue::REAP_EVERY;
-use super::runner::JobEntry;
 use super::store::StoreError;
 use super::view::WebhookMessage;
 

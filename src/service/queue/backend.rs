@@ -8,8 +8,9 @@ use std::time::Instant;
 
 use super::state::State;
 use super::{Admission, Queue, QueueConfig, QueueError, Refusal};
+use crate::service::job::JobEntry;
 use crate::service::model::JobRecord;
-use crate::service::runner::{JobEntry, Runner};
+use crate::service::runner::Runner;
 use crate::service::store::StoreError;
 use crate::service::telemetry::Metrics;
 

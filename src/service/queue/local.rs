@@ -15,8 +15,9 @@ use tracing::{info, info_span, warn};
 
 use super::state::State;
 use super::{Admission, Backend, Queue, QueueConfig, QueueError, Refusal};
+use crate::service::job::{JobEntry, lock};
 use crate::service::model::{CancelReason, JobRecord, Status, Webhook, now_ms};
-use crate::service::runner::{JobEntry, Runner, Settled, job_pool, lock};
+use crate::service::runner::{Runner, Settled, job_pool};
 use crate::service::store::{LocalRecords, StoreError, retry_transient};
 use crate::service::telemetry::Metrics;
 

@@ -22,8 +22,9 @@ use tracing::{info, info_span, warn};
 
 use super::fair::Scheduling;
 use super::inputs::{EncodedInputs, InputLimits};
+use super::job::{JobEntry, lock};
 use super::model::{CancelReason, JobRecord, Placement, Status, now_ms};
-use super::runner::{JobEntry, Runner, lock};
+use super::runner::Runner;
 use super::store::{Store, StoreError, digest, retry_transient};
 use super::telemetry::{Metrics, QueueGauges};
 pub use backend::Backend;

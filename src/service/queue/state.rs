@@ -7,8 +7,8 @@ use std::sync::{Arc, Weak};
 
 use super::{QueueConfig, Refusal};
 use crate::service::fair::FairQueue;
+use crate::service::job::JobEntry;
 use crate::service::model::{Placement, now_ms};
-use crate::service::runner::JobEntry;
 use crate::service::telemetry::Metrics;
 
 /// Ended jobs held in memory below which [`State::hold`] does not look for released ones.

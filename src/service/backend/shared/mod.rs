@@ -15,12 +15,13 @@ use std::time::{Duration, Instant, SystemTime};
 
 use tracing::{info, warn};
 
+use crate::service::job::{JobEntry, lock};
 use crate::service::model::{CancelReason, JobRecord, Status, Webhook};
 use crate::service::queue::state::{State, queue_full};
 use crate::service::queue::{
     Admission, Backend, Queue, QueueConfig, QueueError, REAP_EVERY, Refusal,
 };
-use crate::service::runner::{JobEntry, Runner, lock};
+use crate::service::runner::Runner;
 use crate::service::store::{Records, StoreError, retry_transient};
 use crate::service::telemetry::Metrics;
 pub use postgres::Postgres;

@@ -18,9 +18,10 @@ use tracing::{info, info_span, warn};
 
 use super::postgres::{Beat, Claim, MAX_ATTEMPTS, Postgres};
 use crate::service::fair::Scheduling;
+use crate::service::job::{JobEntry, JobFailure, lock};
 use crate::service::model::{CancelReason, Problem};
 use crate::service::queue::{QueueError, REAP_EVERY};
-use crate::service::runner::{JobEntry, JobFailure, Runner, Settled, job_pool, lock};
+use crate::service::runner::{Runner, Settled, job_pool};
 use crate::service::store::retry_transient;
 
 /// Longest gap between two heartbeats of a running job: how stale its progress row may be,
