@@ -5,7 +5,7 @@
 
 use std::sync::atomic::AtomicBool;
 
-mod pipeline_support;
+use crate::pipeline_support;
 
 use covec::edit::{ReferenceParams, recolor_by_reference};
 use covec::pipeline::{self, Inputs, Masks, Mode, Quiet};

@@ -5,7 +5,7 @@
 //! (`COVEC_CLIENTS_VENV`, default `~/.cache/covec/clients-venv`) and `tests/clients/node_modules`.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -3,7 +3,7 @@
 //! shutdown.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};

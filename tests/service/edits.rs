@@ -2,7 +2,7 @@
 //! recolour by reference image, and bad edit requests → 4xx problem+json.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use hyper::{Method, StatusCode};
 use serde_json::json;

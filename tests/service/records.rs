@@ -4,7 +4,7 @@
 //! server; scripts/test.sh runs this binary on both backends.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use std::time::{Duration, Instant};
 
@@ -173,7 +173,7 @@ const COPIES: u32 = 100_000;
 
 #[tokio::test(flavor = "multi_thread")]
 async fn a_restart_with_100k_stored_records_is_quick_and_keeps_them() {
-    let dir = DataDir::new("records-restart");
+    let dir = DataDir::surviving_restarts("records-restart");
     let server = Server::start(&dir.0, &["--workers", "1"]);
     let template = server.finished_job().await;
     server.stop();

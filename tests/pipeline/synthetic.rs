@@ -4,7 +4,7 @@
 
 use std::sync::atomic::AtomicBool;
 
-mod pipeline_support;
+use crate::pipeline_support;
 
 use covec::pipeline::{self, Inputs, Masks, Mode, Quiet};
 use covec::render::Image;

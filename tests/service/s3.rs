@@ -2,7 +2,7 @@
 //! issue 14), against a real S3 server on loopback: moto's (`moto_server`, installed by
 //! `scripts/setup-s3.sh`, which `scripts/test.sh` calls).
 
-mod service_support;
+use crate::service_support;
 
 use std::process::Command;
 use std::time::Duration;

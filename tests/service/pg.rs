@@ -3,7 +3,7 @@
 //! (tests/service_support/postgres.rs; scripts/setup-postgres.sh installs it), sharing one
 //! directory for the job files.
 
-mod service_support;
+use crate::service_support;
 
 use std::path::Path;
 use std::time::Duration;

@@ -1,7 +1,7 @@
 //! Same inputs, bit-identical image and gradients, whatever the rayon thread count (and whether
 //! the rasteriser's buffers are fresh or reused).
 
-mod render_support;
+use crate::render_support;
 
 use covec::render::{Backdrop, Image, PathGrad, Rasterizer, STRIP_ROWS};
 use render_support::*;

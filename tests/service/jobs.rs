@@ -2,7 +2,7 @@
 //! limits, idempotency, restart recovery. Tiny images and iteration counts keep each job short.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use std::time::Duration;
 
@@ -364,7 +364,7 @@ async fn the_time_limit_fails_a_job_with_a_clear_reason() {
 
 #[tokio::test]
 async fn a_restarted_server_serves_finished_jobs_and_reruns_interrupted_ones() {
-    let dir = DataDir::new("restart");
+    let dir = DataDir::surviving_restarts("restart");
     let mut args = vec!["--workers", "1", "--shutdown-grace", "0"];
     args.extend_from_slice(BIG_BUDGET);
     let server = Server::start(&dir.0, &args);

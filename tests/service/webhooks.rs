@@ -3,7 +3,7 @@
 //! the server is killed; destinations outside the allow-list are refused at submission.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use std::collections::HashMap;
 use std::convert::Infallible;
@@ -271,7 +271,7 @@ async fn deliveries_go_on_after_the_server_is_killed() {
         let probe = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         probe.local_addr().unwrap().port()
     };
-    let dir = DataDir::new("webhooks-restart");
+    let dir = DataDir::surviving_restarts("webhooks-restart");
     let server = webhook_server(&dir, "5");
     let (status, job) = submit(&server, &format!("http://127.0.0.1:{port}/hook"), None).await;
     assert_eq!(status, StatusCode::CREATED, "{job}");
@@ -300,7 +300,7 @@ async fn deliveries_go_on_after_the_server_is_killed() {
 
 #[tokio::test]
 async fn destinations_outside_the_allow_list_are_refused_at_submission() {
-    let dir = DataDir::new("webhooks-refused");
+    let dir = DataDir::surviving_restarts("webhooks-refused");
     // Default configuration: no destinations allowed, loopback included.
     let server = Server::start(&dir.0, &[]);
     let (status, body) = submit(&server, "http://127.0.0.1:9/hook", None).await;

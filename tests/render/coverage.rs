@@ -1,7 +1,7 @@
 //! The forward's coverage: exact areas for polygons, circles within the flattening bound, and a
 //! random scene against tiny-skia's anti-aliased fill.
 
-mod render_support;
+use crate::render_support;
 
 use covec::geom::bezier;
 use covec::geom::bezier::FLATTEN_TOLERANCE;

@@ -7,7 +7,7 @@ use covec::render::{Image, PathGrad, Rasterizer};
 use covec::scene::{Path, Point};
 use serde_json::Value;
 
-const FIXTURE: &str = include_str!("fixtures/diffvg-grad.json");
+const FIXTURE: &str = include_str!("../fixtures/diffvg-grad.json");
 
 fn numbers(v: &Value) -> Vec<f64> {
     match v {

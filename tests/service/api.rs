@@ -2,7 +2,7 @@
 //! visibility, listing, operations endpoints.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use hyper::{Method, StatusCode};
 use serde_json::json;

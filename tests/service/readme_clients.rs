@@ -5,7 +5,7 @@
 //! scripts/setup-clients.sh installs curl, jq and python3-requests.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -22,7 +22,7 @@ const IMAGES: [&str; 2] = ["first", "second"];
 /// The body of the code block tagged `lang` that contains `marker` in the HTTP guide
 /// (docs/api.md).
 fn clients_example(lang: &str, marker: &str) -> String {
-    let guide = include_str!("../docs/api.md");
+    let guide = include_str!("../../docs/api.md");
     let start = format!("```{lang}\n");
     guide
         .split(&start)

@@ -4,7 +4,7 @@
 //! `--ops-addr` in tests/service_pg.rs.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use std::io::{BufRead, BufReader, Write};
 use std::net::{SocketAddr, TcpListener};

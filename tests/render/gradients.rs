@@ -1,6 +1,6 @@
 //! Every analytic gradient of the renderer against central finite differences of its forward.
 
-mod render_support;
+use crate::render_support;
 
 use covec::render::composite::{product, product_backward};
 use covec::render::{Backdrop, Flattening, Image, PathGrad, Rasterizer};

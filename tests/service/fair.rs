@@ -3,7 +3,7 @@
 //! `COVEC_TEST_BACKEND=postgres` the same tests run on the shared backend, where the server's
 //! job slot claims jobs from PostgreSQL by the same rule.
 
-mod service_support;
+use crate::service_support;
 
 use std::time::{Duration, Instant};
 

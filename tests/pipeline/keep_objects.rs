@@ -6,7 +6,7 @@
 
 use std::sync::atomic::AtomicBool;
 
-mod pipeline_support;
+use crate::pipeline_support;
 
 use covec::eval::intrinsic::Truth;
 use covec::eval::vec::iou;

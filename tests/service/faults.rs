@@ -3,7 +3,7 @@
 //! state, orphaned files are swept, and a kill -9 loop loses no accepted job.
 #![cfg(all(feature = "cli", feature = "service"))]
 
-mod service_support;
+use crate::service_support;
 
 use std::path::Path;
 use std::process::Command;
