@@ -62,8 +62,8 @@ fi
 
 # The service tests on the memory backend (`serve --in-memory`): the third implementation of the
 # backend seam (docs/design.md), held to the same tests; a test whose jobs must outlive a
-# restart keeps the embedded backend (tests/service/service_support). COVEC_SKIP_MEMORY_PASS=1
-# skips it.
+# restart, or whose records it reads, keeps the embedded backend (DataDir::persistent in
+# tests/service/service_support). COVEC_SKIP_MEMORY_PASS=1 skips it.
 if [[ -z "${COVEC_SKIP_MEMORY_PASS:-}" ]]; then
     COVEC_TEST_BACKEND=memory cargo nextest run --no-fail-fast --cargo-profile test -E \
         'binary(service) & test(/^(api|jobs|edits|downloads|fair|hardening|records|webhooks|readme_clients|generated_clients)::/)'

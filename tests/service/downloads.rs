@@ -206,7 +206,7 @@ async fn keyed_job(server: &Server, headers: &[(&str, &str)]) -> String {
 
 #[tokio::test]
 async fn signed_urls_open_one_jobs_files_without_the_key_until_they_expire() {
-    let dir = DataDir::surviving_restarts("signed-urls");
+    let dir = DataDir::persistent("signed-urls");
     let server = Server::start(
         &dir.0,
         &["--api-keys", "alpha-key", "--signed-url-ttl", "2"],

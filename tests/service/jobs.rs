@@ -364,7 +364,7 @@ async fn the_time_limit_fails_a_job_with_a_clear_reason() {
 
 #[tokio::test]
 async fn a_restarted_server_serves_finished_jobs_and_reruns_interrupted_ones() {
-    let dir = DataDir::surviving_restarts("restart");
+    let dir = DataDir::persistent("restart");
     let mut args = vec!["--workers", "1", "--shutdown-grace", "0"];
     args.extend_from_slice(BIG_BUDGET);
     let server = Server::start(&dir.0, &args);

@@ -84,7 +84,7 @@ async fn wait_for_status(server: &Server, path: &str, status: StatusCode) -> Rep
 
 #[tokio::test(flavor = "multi_thread")]
 async fn expired_records_and_their_keys_leave_the_api_the_store_and_memory() {
-    let dir = DataDir::new("records-expire");
+    let dir = DataDir::persistent("records-expire");
     let server = Server::start(&dir.0, &["--workers", "1", "--record-retention", "3"]);
     let old = finished_keyed(&server, "order-1").await;
     let replay = submit_keyed(&server, "order-1").await;
@@ -136,7 +136,7 @@ async fn expired_records_and_their_keys_leave_the_api_the_store_and_memory() {
 
 #[tokio::test(flavor = "multi_thread")]
 async fn an_idempotency_key_expires_after_its_window_while_the_record_stays() {
-    let dir = DataDir::new("records-keys");
+    let dir = DataDir::persistent("records-keys");
     let server = Server::start(&dir.0, &["--workers", "1", "--idempotency-window", "2"]);
     let first = finished_keyed(&server, "batch-7").await;
     let replay = submit_keyed(&server, "batch-7").await;
@@ -173,7 +173,7 @@ const COPIES: u32 = 100_000;
 
 #[tokio::test(flavor = "multi_thread")]
 async fn a_restart_with_100k_stored_records_is_quick_and_keeps_them() {
-    let dir = DataDir::surviving_restarts("records-restart");
+    let dir = DataDir::persistent("records-restart");
     let server = Server::start(&dir.0, &["--workers", "1"]);
     let template = server.finished_job().await;
     server.stop();

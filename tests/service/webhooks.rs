@@ -271,7 +271,7 @@ async fn deliveries_go_on_after_the_server_is_killed() {
         let probe = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         probe.local_addr().unwrap().port()
     };
-    let dir = DataDir::surviving_restarts("webhooks-restart");
+    let dir = DataDir::persistent("webhooks-restart");
     let server = webhook_server(&dir, "5");
     let (status, job) = submit(&server, &format!("http://127.0.0.1:{port}/hook"), None).await;
     assert_eq!(status, StatusCode::CREATED, "{job}");
@@ -300,7 +300,7 @@ async fn deliveries_go_on_after_the_server_is_killed() {
 
 #[tokio::test]
 async fn destinations_outside_the_allow_list_are_refused_at_submission() {
-    let dir = DataDir::surviving_restarts("webhooks-refused");
+    let dir = DataDir::persistent("webhooks-refused");
     // Default configuration: no destinations allowed, loopback included.
     let server = Server::start(&dir.0, &[]);
     let (status, body) = submit(&server, "http://127.0.0.1:9/hook", None).await;

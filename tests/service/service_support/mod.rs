@@ -27,7 +27,7 @@ use serde_json::Value;
 /// and, when the run has an S3 server (`COVEC_TEST_S3_ENDPOINT`, started by scripts/test.sh),
 /// its own bucket there for the artefacts (`--object-store`). With `COVEC_TEST_BACKEND=memory`
 /// its servers keep records in memory (`--in-memory`), except on a directory made with
-/// [`DataDir::surviving_restarts`]. scripts/test.sh runs the service tests all three ways;
+/// [`DataDir::persistent`]. scripts/test.sh runs the service tests all three ways;
 /// [`DataDir::read_job_file`] and its siblings reach a job's files on each.
 pub struct DataDir(pub PathBuf, Option<Box<Shared>>);
 
@@ -84,9 +84,10 @@ impl DataDir {
         dir
     }
 
-    /// A data directory whose jobs outlive its server (for tests that start another on it):
-    /// on the memory run, the embedded backend's.
-    pub fn surviving_restarts(name: &str) -> Self {
+    /// A data directory whose records are kept where they outlive its server and the test can
+    /// read them (tests that restart a server on it, or look into the database): on the memory
+    /// run, the embedded backend's.
+    pub fn persistent(name: &str) -> Self {
         Self::with_files(name, Files::Backend)
     }
 
