@@ -353,9 +353,9 @@ fn start(command: &str, log: &LogArgs) -> Result<tokio::runtime::Runtime, ExitCo
 ///
 /// glibc gives each new thread an arena of its own while fewer than 8 per core exist, and
 /// each arena keeps its own high water of freed memory. A service process has many threads
-/// (three runtimes and their blocking pools), so its heap crept: under an hour of chaos
-/// (`scripts/chaos.sh`) an API replica went from 7 to 11 arenas and +10 % RSS. One per core
-/// is enough for the pipeline's threads (one per core) not to wait for each other.
+/// (three runtimes and their blocking pools), so its heap crept under the chaos harness
+/// (docs/history.md, "Malloc arenas"). One per core is enough for the pipeline's threads (one
+/// per core) not to wait for each other.
 fn limit_malloc_arenas() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     if std::env::var_os("MALLOC_ARENA_MAX").is_none() {
