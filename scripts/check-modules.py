@@ -34,16 +34,19 @@ LAYERS = [
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
 
 # The service's own layers, bottom to top (docs/design.md, "The service"): what a job is, where
-# records and files are kept, the job backend and the service core, and the HTTP edge (the
-# handlers, `error.rs` turning domain errors into problems, and the service root with the
-# router). A module may import its own layer or a lower one.
+# records and files are kept (and the records' seam), the service core with the queue's seam to
+# its backend, the backends (one folder each, implementing both seams: `backend/mod.rs` is the
+# one place that chooses among them), and the HTTP edge (the handlers, `error.rs` turning domain
+# errors into problems, and the service root with the router). A module may import its own
+# layer or a lower one.
 SERVICE_LAYERS = [
     ["model", "view", "rate", "fair", "conn"],
     ["store"],
     ["inputs", "telemetry"],
-    ["runner", "worker", "queue", "webhooks", "derived"],
-    ["error", "auth", "signed", "submit", "download", "jobs", "results", "edits", "ops", "limits",
-     "openapi", "fuzzing", ""],
+    ["job", "runner", "queue", "webhooks", "derived"],
+    ["backend"],
+    ["error", "auth", "signed", "submit", "download", "jobs", "events", "results", "edits", "ops", "limits",
+     "openapi", "fuzzing", "state", "serve", ""],
 ]
 SERVICE_RANK = {name: rank for rank, names in enumerate(SERVICE_LAYERS) for name in names}
 
@@ -166,15 +169,16 @@ def refused(src: Path):
 
 
 def self_test() -> int:
-    """Injects an upward import (the runner naming the HTTP error type) and a cycle (the queue's
-    state naming its embedded backend, which imports it) into copies of src/: each must be
-    refused."""
+    """Injects an upward import (the runner naming the HTTP error type), a cycle (the queue's
+    state naming its local backend, which imports it) and a backend named below the backends (the
+    queue naming the shared one) into copies of src/: each must be refused."""
     import shutil
     import tempfile
 
     injections = [
         ("service/runner.rs", "use crate::service::error::ApiError;\n"),
-        ("service/queue/state.rs", "use super::embedded::Embedded;\n"),
+        ("service/queue/state.rs", "use super::local::Local;\n"),
+        ("service/queue/mod.rs", "use crate::service::backend::RecordsAt;\n"),
     ]
     for file, line in injections:
         with tempfile.TemporaryDirectory() as tmp:

@@ -389,7 +389,7 @@ fi
 passed "SIGTERM: clean exit; then the health check fails: $(cat "$work/health.err")"
 
 begin "scaled: PostgreSQL and S3 over HTTPS"
-# PostgreSQL refuses root: as `postgres`, as tests/service_support/postgres.rs runs it.
+# PostgreSQL refuses root: as `postgres`, as tests/service/service_support/postgres.rs runs it.
 pg_bin=$(find /usr/lib/postgresql -path '*/bin/initdb' -printf '%h\n' 2>/dev/null | sort -V | tail -n 1)
 [[ -n $pg_bin ]] || pg_bin=$(dirname "$(command -v initdb)")
 as_postgres() { setpriv --reuid=postgres --regid=postgres --init-groups "$@"; }

@@ -9,7 +9,7 @@
 # out-of-memory are crashes), a build CI can afford (README, "Fuzzing", has the cost);
 # `address` adds AddressSanitizer for the unsafe code below covec.
 # New corpus entries go to fuzz/corpus/<target>/ (not committed; fuzz/seeds/ are the seeds), a
-# crash input to fuzz/artifacts/<target>/: keep it as a test in tests/fuzz_regressions.rs.
+# crash input to fuzz/artifacts/<target>/: keep it as a test in tests/cli/fuzz_regressions.rs.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

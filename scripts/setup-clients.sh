@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs what the client tests need, idempotently: Debian's curl, jq and python3-requests for
-# the batch examples of docs/api.md (tests/readme_clients.rs), and the client generators
-# (tests/generated_clients.rs). Safe to run on every test run.
+# the batch examples of docs/api.md (tests/service/readme_clients.rs), and the client generators
+# (tests/service/generated_clients.rs). Safe to run on every test run.
 set -euo pipefail
 
 missing=()
@@ -16,7 +16,7 @@ if [[ ${#missing[@]} -gt 0 ]]; then
     DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
 
-# The client generators of tests/generated_clients.rs (docs/api.md, "Generated clients"), at
+# The client generators of tests/service/generated_clients.rs (docs/api.md, "Generated clients"), at
 # pinned versions: openapi-python-client in its own virtual environment, openapi-typescript,
 # openapi-fetch and TypeScript from tests/clients/package-lock.json.
 venv=${COVEC_CLIENTS_VENV:-$HOME/.cache/covec/clients-venv}

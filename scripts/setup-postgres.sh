@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs what the PostgreSQL-backend tests start (tests/service_pg.rs): the server binaries
+# Installs what the PostgreSQL-backend tests start (tests/service/pg.rs): the server binaries
 # (`initdb`, `postgres`; each test runs its own throwaway cluster on a free loopback port),
 # `pg_isready` and `psql`, from Debian's `postgresql` package. Safe to run on every test run.
 set -euo pipefail

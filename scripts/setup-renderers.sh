@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs the renderers the output tests call (tests/flat_output.rs), idempotently: Debian's
+# Installs the renderers the output tests call (tests/pipeline/flat_output.rs), idempotently: Debian's
 # poppler-utils (pdftoppm, for the PDF) and librsvg2-bin (rsvg-convert), and CairoSVG from PyPI
 # (for the flattened SVG). Safe to run on every test run.
 set -euo pipefail

@@ -16,6 +16,9 @@ scripts/setup-build.sh
 # "Install").
 python3 scripts/check-modules.py
 python3 scripts/check-modules.py --self-test
+# The vendored rayon-core (vendor/README.md) is the copy built: a [patch] that stops applying
+# after a `cargo update` is otherwise only a warning.
+python3 scripts/check-patches.py
 cargo check --quiet --lib --no-default-features
 cargo check --quiet --bin covec --no-default-features --features cli
 # The Dockerfile and deploy/ files, which nothing here builds or applies: linted and validated.
@@ -48,8 +51,8 @@ fi
 
 # The service tests again on the shared backend (README, "Scaling out"): every test data directory
 # gets its own throwaway PostgreSQL and its own bucket on one moto S3 server started here
-# (tests/service_support), so every service test runs on both backends (the two disk-fault tests
-# with their files on the local disk). COVEC_SKIP_PG_PASS=1 skips it.
+# (tests/service/service_support), so every service test runs on the shared backend too (the two
+# disk-fault tests with their files on the local disk). COVEC_SKIP_PG_PASS=1 skips it.
 if [[ -z "${COVEC_SKIP_PG_PASS:-}" ]]; then
     s3_port=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
     moto_server -H 127.0.0.1 -p "$s3_port" >/dev/null 2>&1 &
@@ -61,10 +64,19 @@ if [[ -z "${COVEC_SKIP_PG_PASS:-}" ]]; then
     done
     COVEC_TEST_BACKEND=postgres COVEC_TEST_S3_ENDPOINT="http://127.0.0.1:$s3_port" \
         cargo nextest run --no-fail-fast --cargo-profile test -E \
-        'binary(/^(service_(api|jobs|edits|downloads|faults|fair|hardening|records|s3|webhooks)|readme_clients|generated_clients)$/)'
+        'binary(service) & test(/^(api|jobs|edits|downloads|faults|fair|hardening|records|s3|webhooks|readme_clients|generated_clients)::/)'
     kill "$moto_pid" 2>/dev/null || true
     wait "$moto_pid" 2>/dev/null || true
     trap - EXIT
+fi
+
+# The service tests on the memory backend (`serve --in-memory`): the third implementation of the
+# backend seam (docs/design.md), held to the same tests; a test whose jobs must outlive a
+# restart, or whose records it reads, keeps the embedded backend (DataDir::persistent in
+# tests/service/service_support). COVEC_SKIP_MEMORY_PASS=1 skips it.
+if [[ -z "${COVEC_SKIP_MEMORY_PASS:-}" ]]; then
+    COVEC_TEST_BACKEND=memory cargo nextest run --no-fail-fast --cargo-profile test -E \
+        'binary(service) & test(/^(api|jobs|edits|downloads|fair|hardening|records|webhooks|readme_clients|generated_clients)::/)'
 fi
 
 # The running service against api/openapi.yaml with schemathesis: every check, every phase

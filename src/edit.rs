@@ -398,8 +398,9 @@ pub fn recolor_by_reference(
 
 /// How far (px, in x and in y) an albedo path may paint beyond the edit region and still be
 /// recoloured whole: a fitted outline overshoots its object by about a pixel, and its
-/// anti-aliased edge by another. Split for that rim, the disc of `tests/edit_synthetic.rs` came
-/// out worse than recoloured whole (`docs/benchmarks.md`, edit leakage).
+/// anti-aliased edge by another. Split for that rim, the disc of
+/// `tests/pipeline/edit_synthetic.rs` came out worse than recoloured whole
+/// (`docs/benchmarks.md`, edit leakage).
 const RIM: usize = 2;
 
 /// `region` (a `width`-wide mask) widened by `reach` pixels in x and in y (a square).

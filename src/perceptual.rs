@@ -6,7 +6,7 @@
 //! Both compare grey levels on the 0-255 scale, as their authors' reference code does when it is
 //! given `rgb2gray` of a colour image; [`Grey::luma`] uses Octave's `rgb2gray` weights. The
 //! numbers match the authors' MATLAB code (`GMSD.m`, `msssim.m` + `ssim_index_new.m`) run in
-//! GNU Octave to 1e-6 (`tests/perceptual_reference.rs`).
+//! GNU Octave to 1e-6 (`tests/pipeline/perceptual_reference.rs`).
 
 use crate::render::Image;
 use crate::simd::widest;

@@ -26,9 +26,9 @@ pub struct SvgOptions {
 /// digits, so more would only print noise.
 pub const MAX_PRECISION: u32 = 6;
 
-/// The default grid, in units per pixel. On the 16 bench photos at 256² a quarter-pixel grid makes
-/// the gzipped files 0.84× as large as a tenth-pixel one for 1.006× the MSE at 64 paths (1.012×
-/// at 256); half a pixel would cost 1.024× (1.054×).
+/// The default grid, in units per pixel: a quarter pixel makes the files smaller than a finer
+/// grid at almost the same error, where half a pixel costs more (docs/history.md, "SVG
+/// output").
 pub const DEFAULT_UNITS_PER_PIXEL: u32 = 4;
 
 /// The flattened SVG's default grid, a tenth of a pixel: its polygons follow curves with many

@@ -2,7 +2,7 @@
 
 GMSD follows the authors' GMSD.m on Octave's rgb2gray luma (0-255), as covec::perceptual::gmsd
 does; `metrics.py --check FIXTURES` verifies it against the Octave values that
-tests/perceptual_reference.rs holds. Usage: metrics.py [--skin MASK.png] REF.png RENDER.png...
+tests/pipeline/perceptual_reference.rs holds. Usage: metrics.py [--skin MASK.png] REF.png RENDER.png...
 (one "mse gmsd" line per render). With a skin mask (white: skin; `covec eval --faces FILE
 --write-masks DIR` writes them) two more numbers, as `covec eval --faces` scores skin: the
 CIEDE2000 between the mean skin colours (means in CIELAB) and the mean per-pixel CIEDE2000

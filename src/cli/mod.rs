@@ -42,8 +42,8 @@ pub fn eval(args: &eval::Args) -> Result<(), String> {
 
 /// Runs `work` on a thread of rayon's global pool, as a batch and the service run their
 /// pipelines. Called from outside the pool, each of a pipeline's parallel loops hands its work
-/// to the pool and puts the calling thread to sleep until it is done, thousands of times a run:
-/// at 256² that was 46 000 context switches against 4 000, and a fifth of the wall time.
+/// to the pool and puts the calling thread to sleep until it is done, thousands of times a
+/// run, which cost a large share of the wall time (docs/history.md, "Running in the pool").
 fn in_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| work())
 }

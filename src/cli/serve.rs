@@ -10,8 +10,8 @@ use std::time::Duration;
 use clap::{Args, ValueEnum};
 
 use covec::service::{
-    self, Config, ConnectionLimits, InputLimits, QueueConfig, Scheduling, SignedUrlConfig,
-    WebhookConfig,
+    self, Config, ConnectionLimits, InputLimits, QueueConfig, RecordsAt, Scheduling,
+    SignedUrlConfig, WebhookConfig,
 };
 
 /// Storage, job slots and what one job may take: shared by `serve` and `worker`. Every option
@@ -32,6 +32,10 @@ pub struct JobArgs {
     /// shared by API replicas and `covec worker`s, instead of SQLite in the data directory.
     #[arg(long, env = "COVEC_DATABASE_URL", hide_env_values = true)]
     database_url: Option<String>,
+    /// Keep job records and the queue in this process's memory instead (`covec serve` only):
+    /// nothing but the job files survives a restart. For trials and tests.
+    #[arg(long, env = "COVEC_IN_MEMORY", conflicts_with = "database_url")]
+    in_memory: bool,
     /// Jobs run at once; the pipeline threads are shared out among them. With
     /// --database-url, `covec serve --workers 0` runs no job (an API replica).
     #[arg(long, env = "COVEC_WORKERS", default_value_t = QueueConfig::default().workers)]
@@ -114,7 +118,11 @@ impl JobArgs {
         let defaults = QueueConfig::default();
         config.data_dir = self.data_dir;
         config.object_store = self.object_store;
-        config.database_url = self.database_url;
+        config.records = match (self.database_url, self.in_memory) {
+            (Some(url), _) => RecordsAt::Database(url),
+            (None, true) => RecordsAt::Memory,
+            (None, false) => RecordsAt::DataDir,
+        };
         config.queue.workers = self.workers;
         config.queue.threads = self.threads.unwrap_or(defaults.threads);
         config.queue.job_time_limit = Duration::from_secs(self.job_time_limit);
@@ -345,9 +353,9 @@ fn start(command: &str, log: &LogArgs) -> Result<tokio::runtime::Runtime, ExitCo
 ///
 /// glibc gives each new thread an arena of its own while fewer than 8 per core exist, and
 /// each arena keeps its own high water of freed memory. A service process has many threads
-/// (three runtimes and their blocking pools), so its heap crept: under an hour of chaos
-/// (`scripts/chaos.sh`) an API replica went from 7 to 11 arenas and +10 % RSS. One per core
-/// is enough for the pipeline's threads (one per core) not to wait for each other.
+/// (three runtimes and their blocking pools), so its heap crept under the chaos harness
+/// (docs/history.md, "Malloc arenas"). One per core is enough for the pipeline's threads (one
+/// per core) not to wait for each other.
 fn limit_malloc_arenas() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     if std::env::var_os("MALLOC_ARENA_MAX").is_none() {

@@ -59,9 +59,8 @@ const DARK_TOLERANCE: f32 = 0.01;
 const MAX_DARK_EXTRA: f32 = 0.1;
 /// The same two for a pair [`MIN_SHADOW_CONTRAST`] or more apart in luminance, light and its
 /// shadow: coloured bounce light (a Cornell box's red and green walls) tints a shadow more than
-/// noise does. On the Cornell scenes of benches/quality/cornell.py the map's error fell from
-/// 0.39-0.48 to 0.15-0.48 of the image's; applied to every pair, it joined two pastel objects
-/// of like lightness, and a recolour of one changed both.
+/// noise does; applied to every pair, it joined two pastel objects of like lightness, and a
+/// recolour of one changed both (docs/history.md, "Intrinsic decomposition").
 const SHADOW_DARK_TOLERANCE: f32 = 0.02;
 const SHADOW_MAX_DARK_EXTRA: f32 = 0.15;
 /// Two groups whose luminances differ by more than this factor are not one surface in light
@@ -79,10 +78,8 @@ const MIN_SHIFT: f32 = 0.08;
 const SKY_ANGLE: f32 = std::f32::consts::FRAC_PI_6;
 /// A boundary is soft (see [`soft`]) when its chromaticity step is at most this share of the
 /// difference of its superpixels' means and its luminance step at most
-/// [`SOFT_LUMINANCE_STEP`] (log ratio). On the Cornell scenes of benches/quality/cornell.py,
-/// without [`SOFT_GROUP_ANGLE`], the map's error on the one under a warm lamp and a blue sky
-/// fell from 0.48 to 0.41 of the image's, on the one with spheres from 0.35 to 0.21, with
-/// shares of 0.2 and 0.3 (0.46 and 0.35 at 0.1); the generated scenes' maps kept their error.
+/// [`SOFT_LUMINANCE_STEP`] (log ratio): it lowers the Cornell scenes' map error and keeps the
+/// generated scenes' (docs/history.md, "Intrinsic decomposition").
 const SOFT_SHARE: f32 = 0.2;
 /// Largest luminance step (log ratio) across a soft boundary: 0.2 joined the generated
 /// warm-light scene's objects to their floor.
@@ -90,11 +87,8 @@ const SOFT_LUMINANCE_STEP: f32 = 0.1;
 /// Groups a soft boundary joins differ in mean chromaticity by at most this angle (radians):
 /// each gradient join lets a group chain on, and on the bench's portraits chained joins
 /// flattened the map (a face's shaded half joined its lit half), leaving the vectoriser fewer
-/// albedo masks. Measured on the bench's 16 photos and the Cornell scenes of
-/// benches/quality/cornell.py: unbounded, mean MSE +3.5 %; at 0.15, +1.8 % (and GMSD +1.1 %);
-/// at 0.12, -0.1 % (GMSD -0.4 %) with the spheres scene's map error still 0.21 of the image's
-/// (0.35 without gradient joins); at 0.1 that gain is gone. The warm-sky scene's gain (map
-/// 0.48 to 0.41) needs 0.15.
+/// albedo masks. 0.12 keeps the photos' error and most of the Cornell scenes' gain
+/// (docs/history.md, "Intrinsic decomposition").
 const SOFT_GROUP_ANGLE: f32 = 0.12;
 /// The colour step across a boundary is taken between pixels this far out on either side, so
 /// that a superpixel boundary a pixel off an edge (or inside its anti-aliased ramp) still sees

@@ -96,10 +96,9 @@ struct Merge {
 }
 
 /// Long side above which [`superpixels`] are found on a half-size copy. Felzenszwalb's passes
-/// over the edges wait on memory, on one thread: at 1024² the two runs of a photo's decompose
-/// stage took 0.7 of its 1.2 s while the other core waited; from half size the stage took
-/// 0.45 s. On the 16 bench photos upscaled to 1024² and the 1024² astronaut, the mean MSE fell
-/// 1.3 % (GMSD 0.2 %; at seed 7 MSE −0.3 %, GMSD +0.1 %). Up to 512² nothing changes.
+/// over the edges wait on memory, on one thread, and dominated the decompose stage at 1024²;
+/// from half size it is faster at no loss (docs/history.md, "Decomposition"). Up to 512²
+/// nothing changes.
 const SUPERPIXEL_SIDE: usize = 512;
 
 /// Felzenszwalb superpixels of `image` (blurred first), components under 1/`min_share` of the

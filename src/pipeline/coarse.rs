@@ -15,8 +15,8 @@
 //! loss of the last `window` iterations is less than `min_gain` (relative) below the best loss
 //! before them. The reconstruction, the coarse refinement rounds and the polish stop early; the
 //! last (full-size) refinement round runs all its iterations: it places the paths the output
-//! ends with, and stopping it early changed which paths cover a region enough to break the
-//! edit-faithfulness check (`tests/edit_synthetic.rs`, photo beats albedo-only at K = 2).
+//! ends with, and stopping it early broke the edit-faithfulness test (docs/history.md,
+//! "Coarse to fine").
 
 use crate::decompose::mask::Mask;
 
@@ -29,33 +29,27 @@ pub struct CoarseSettings {
     /// Long side the coarse copy may be brought down to: the working size is halved once, and
     /// again while the copy's long side stays at least this (the polish stops at
     /// [`CoarseSettings::polish_halvings`]). Default 256: 512² runs coarse at 256², 1024² at
-    /// 256² too (a sixteenth of the pixels), where its coarse iterations cost what they cost at
-    /// 512². On the 16 bench photos upscaled to 512², coarse at 128² raised the mean MSE by 1.2%.
+    /// 256² too, where its coarse iterations cost what they cost at 512²; smaller lost
+    /// accuracy (docs/history.md, "Coarse to fine").
     pub side: usize,
     /// Share of the reconstruction iterations run coarse. Default 0.8.
     pub reconstruction_share: f32,
     /// Refinement rounds run at full size, at the end; the earlier ones run coarse. Default 1.
     pub fine_rounds: u32,
-    /// Share of the polish iterations run coarse. Default 0.75: on the 16 bench photos at 64
-    /// paths, 120 coarse and 40 full-size iterations reach a lower error than 65 at full size
-    /// in about the same time.
+    /// Share of the polish iterations run coarse. Default 0.75: a lower error than fewer
+    /// full-size iterations in the same time (docs/history.md, "Coarse to fine").
     pub polish_share: f32,
     /// Side above which the polish's full-size iterations shrink in proportion to the side
     /// (the rest run coarse): their cost then grows with the side, not with the pixel count.
-    /// Default 512: 512² keeps 40 of 160 at full size, 1024² runs 20 (140 coarse). On the 16
-    /// bench photos upscaled to 1024², that raised the mean MSE by 0.3% and GMSD by 0.1%, and
-    /// a whole 1024² run took 0.88× the CPU time; 10 at full size (150 coarse) cost 0.8% and
-    /// 0.5%.
+    /// Default 512: 512² keeps 40 of 160 at full size, 1024² runs 20 (140 coarse), a small
+    /// loss for a cheaper run (docs/history.md, "Coarse to fine").
     pub polish_fine_side: usize,
-    /// Most halvings of the polish's last coarse copy. Default 1: at 1024² a quarter-size polish
-    /// raised the mean GMSD of the 16 bench photos upscaled 4× by 0.9% (the gradient-similarity
-    /// term wants the detail a half-size copy keeps).
+    /// Most halvings of the polish's last coarse copy. Default 1: the gradient-similarity term
+    /// wants the detail a half-size copy keeps (docs/history.md, "Coarse to fine").
     pub polish_halvings: u32,
     /// Share of the polish's coarse iterations run on the smallest copy first, when the other
-    /// stages' copy is smaller than the polish's (1024²: 256² against 512²). Default 0.7: at
-    /// 1024², 98 iterations at 256² and 42 at 512² before the 20 at full size took 0.87× the
-    /// CPU time of a run with all 140 at 512², and on the 16 bench photos upscaled 4× the mean
-    /// MSE rose 0.3% and GMSD fell 0.7%; with 0.9 GMSD rose 0.3%.
+    /// stages' copy is smaller than the polish's (1024²: 256² against 512²). Default 0.7:
+    /// cheaper at no loss of GMSD, where 0.9 lost some (docs/history.md, "Coarse to fine").
     pub polish_deep_share: f32,
 }
 

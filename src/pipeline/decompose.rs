@@ -94,7 +94,7 @@ pub(crate) fn run(inputs: &Inputs, params: &Params) -> Decomposition {
     };
     let masks_given = given.is_some();
     // Filling holes and splitting components, candidate by candidate on rayon's pool: on one
-    // thread it took about 4 % of a 1024² run's CPU time while the other core waited.
+    // thread the other cores waited (docs/history.md, "Decomposition").
     let candidates = match given {
         Some(given) => {
             let prepared = given

@@ -100,16 +100,15 @@ pub struct InitState {
 
 /// How many times [`simplify_tolerance`] an outline may stray where the image is flat. There a
 /// straighter outline costs the loss little, and the optimiser moves it anyway; on an edge it
-/// would cost the edge. Alone, with [`EDGE_CONTRAST`] 0.07 and 8×, on the 16 bench photos at 64
-/// paths it took the segments per path down by a fifth for a lower MSE; under the segment
-/// budget ([`super::segments`]) 0.1 and 10× do better.
+/// would cost the edge. Under the segment budget ([`super::segments`]) 0.1 and 10× did best
+/// (docs/history.md, "Init outlines").
 pub const FLAT_TOLERANCE_FACTOR: f32 = 10.0;
 
 /// Luma gradient from which an outline point counts as on an edge and keeps the edge
 /// tolerance; below it the tolerance rises linearly to [`FLAT_TOLERANCE_FACTOR`] times at a
 /// flat point. Central differences of luma in [0, 1], per [`simplify_tolerance`] pixels (per
 /// pixel up to 256 px of long side), so that an image at twice the size gets the same outlines
-/// (per pixel, 512² upscaled bench photos lost 2.8% MSE).
+/// (per pixel lost MSE at 512²: docs/history.md, "Init outlines").
 pub const EDGE_CONTRAST: f32 = 0.1;
 
 /// The init outlines' tolerance at each point: [`simplify_tolerance`] on an edge of the image,
@@ -275,8 +274,7 @@ pub(crate) fn run(
 /// The albedo fills stay the map's means. Refitting them as well (alternating least squares)
 /// lets a sliver of albedo mask on a cast shadow's edge, under no
 /// shade path, take the shadow's colour; the optimiser then grows it over the shadow. Held to
-/// the map, on the generated scenes: shadow left in the albedo at most 1% (was up to 24%), the
-/// albedo error lower on 8 of 10 scenes; bench photos as good or better.
+/// the map, shadows stay out of the albedo (docs/history.md, "Init outlines").
 fn fit_illumination_fills(
     scene: &mut Scene,
     target: &Image,

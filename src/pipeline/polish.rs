@@ -26,11 +26,11 @@ use crate::scene::{LayerKind, Path, Scene};
 pub(crate) struct PolishSettings {
     /// Adam in photo mode. Default: the paper's point rate (a pixel a step, at each size the
     /// polish runs at) with half its colour and opacity rates: a photo's edges need the full
-    /// step to reach them in the polish's few iterations (docs/history.md, "Polish settings").
+    /// step to reach them in the polish's few iterations (docs/history.md, "The polish").
     pub photo_adam: AdamSettings,
     /// Adam in simple mode. Default: half the paper's rates. Flat artwork's edges sit where
-    /// its colours step, and a pixel a step overshoots them (docs/history.md, "Polish
-    /// settings").
+    /// its colours step, and a pixel a step overshoots them (docs/history.md, "The
+    /// polish").
     pub simple_adam: AdamSettings,
     /// When the polish stops early.
     pub plateau: PlateauSettings,
@@ -48,12 +48,12 @@ pub(crate) struct PolishSettings {
     /// the picture); rising is free. Left free, the MSE lowers a surface's fill to the mean of
     /// its lit and darker parts wherever no shade path holds the darker ones, and skin and
     /// shadowed white surfaces went grey in the albedo. Default 0.005, the loosest that keeps
-    /// the Cornell scenes' albedo right (docs/history.md, "Polish settings").
+    /// the Cornell scenes' albedo right (docs/history.md, "The polish").
     pub albedo_lightness_drop: f32,
     /// Share of the canvas a fill must own for [`Self::albedo_lightness_drop`] to hold it.
     /// Default 1-30 %. A fill owning more is at low path counts the picture's base tone over
     /// several surfaces, whose mean the MSE rightly asks for; fills under 1 % are at high path
-    /// counts pieces of a textured surface (docs/history.md, "Polish settings").
+    /// counts pieces of a textured surface (docs/history.md, "The polish").
     pub lightness_floor_share: Range<f32>,
 }
 
@@ -65,7 +65,7 @@ const SIMILARITY_REFERENCE_SIDE: f32 = 256.0;
 /// picture at twice the size has half the gradient per pixel, and where gradients are small
 /// against GMSD's constant the term is quadratic in them (exponent 2); where they are large it
 /// does not change (0). 1.5: the largest that keeps the MSE of a set of 512² photos no worse
-/// than without the growth (docs/history.md, "Polish settings").
+/// than without the growth (docs/history.md, "The polish").
 const SIMILARITY_SIZE_EXPONENT: f32 = 1.5;
 
 /// The path budget the set weight was chosen at (also the default budget, `Params::paths`).
@@ -121,7 +121,7 @@ impl PolishSettings {
     /// [`Self::similarity_weight`] for the shapes; for the colours, the weight at
     /// [`SIMILARITY_REFERENCE_PATHS`] when the budget is above it. The term asks for the
     /// photo's edges, and grown for large budgets it also pulled fill colours, skin's among
-    /// them, away from the photo's to sharpen texture (docs/history.md, "Polish settings").
+    /// them, away from the photo's to sharpen texture (docs/history.md, "The polish").
     pub(crate) fn similarity_weights(&self, pixels: usize, paths: u32) -> SimilarityWeights {
         let reference = SIMILARITY_REFERENCE_PATHS as u32;
         SimilarityWeights {

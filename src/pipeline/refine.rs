@@ -39,13 +39,10 @@ pub struct RefineSettings {
     /// Smallest semi-axis of a new path, in pixels. Default 1.5.
     pub min_radius: f32,
     /// Most vertices of a new path that starts as its region's outline ([`Growth::outline`]).
-    /// Default 10. The region's ellipse reaches past a curved or forked region: on the 512²
-    /// astronaut a shadow between hair and face started as an ellipse over the lit cheek, and
-    /// the training left the cheek 13 L\* too dark. From outlines, on the 16 bench photos at 64
-    /// paths, mean MSE −1.0, −0.6 and −0.1 % at seeds 0, 7 and 13 (6 vertices: +1 % at seed 0;
-    /// 12 and 16 as 10). The segment budget still reserves [`REGION_PATH_SEGMENTS`] per new
-    /// path (`super::segments::refinement_reserve`), so the files grow a little (face_obama at 8
-    /// paths: 1514 → 1688 gzip bytes); reserving 7 or 8 cost 1.2-1.6 % MSE at 64 paths.
+    /// Default 10. The region's ellipse reaches past a curved or forked region, where an
+    /// outline keeps to it; the segment budget still reserves [`REGION_PATH_SEGMENTS`] per new
+    /// path (`super::segments::refinement_reserve`), so the files grow a little
+    /// (docs/history.md, "Refinement").
     pub outline_vertices: usize,
     /// When a round's training stops early.
     pub plateau: PlateauSettings,
@@ -74,7 +71,8 @@ pub struct Growth {
     pub color_max: f32,
     /// Whether a new path starts as its region's outline ([`RefineSettings::outline_vertices`])
     /// rather than its ellipse. Photo mode's illumination paths do; simple mode's albedo paths
-    /// do not: on the 8 bench emoji outlines cost 2 % MSE, their regions being compact.
+    /// do not: the emoji's regions are compact and outlines cost MSE (docs/history.md,
+    /// "Refinement").
     pub outline: bool,
 }
 

@@ -15,9 +15,9 @@ pub struct Region {
 /// Per-pixel error below this (Σ over channels of squared differences) is ignored. LayerVec: 0.025.
 pub const ERROR_FLOOR: f32 = 0.025;
 /// Number of quantile edges used to bin the error, ends included: 4 gives three bins (terciles of
-/// the error above the floor). LayerVec uses 139; on covec-bench photos that fragments the error
-/// into 3-24 px components, so new paths start as specks. Terciles give 20-170 px regions and an
-/// 18% lower final MSE (6 bench photos at 64 paths: 0.00306 → 0.00252).
+/// the error above the floor). LayerVec uses 139, which fragments a photo's error into specks
+/// that new paths start as; terciles give regions a path can cover (docs/history.md,
+/// "Refinement regions").
 const QUANTILE_EDGES: usize = 4;
 
 /// Up to `count` largest connected regions of similar, high error. The error (`width × height`
@@ -112,8 +112,8 @@ const OUTLINE_TOLERANCE: (f32, f32) = (0.75, 1.5);
 /// The outer boundary of the region with its holes filled, as a polygon of at most
 /// `max_vertices` vertices (at least 3): simplified at a tolerance that grows from
 /// [`OUTLINE_TOLERANCE`] until it fits. Filled, a pocket of background that meets the outside
-/// only at a pixel corner is inside, so the outline does not wind into it (on the bench
-/// photos that start gave 0.7 % less MSE). `None` below [`MIN_OUTLINE_PIXELS`] pixels.
+/// only at a pixel corner is inside, so the outline does not wind into it (docs/history.md,
+/// "Refinement regions"). `None` below [`MIN_OUTLINE_PIXELS`] pixels.
 pub fn outline(region: &Region, width: usize, max_vertices: usize) -> Option<Vec<Point>> {
     // The region on a mask of its bounding box, so that the work is its size, not the canvas's.
     let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);

@@ -10,10 +10,9 @@
 //!   halved at t = ½ (de Casteljau: no pixel changes), until the scene holds
 //!   [`SEGMENTS_PER_PATH`] per path less the refinement's share. Only the illumination
 //!   layer splits. Albedo outlines split where the loss pulls chase the shadows' edges, the
-//!   leak `super::stage::hold_albedo` guards against (generated sphere scene: shadow in the
-//!   albedo 8.6% → 11.7% with albedo splits, 8.1% without); in simple mode, where the albedo
-//!   is the only layer, the emoji's outlines already fit the budget and splits cost GMSD
-//!   (0.0632 → 0.0669) for no MSE.
+//!   leak `super::stage::hold_albedo` guards against; in simple mode, where the albedo is the
+//!   only layer, the emoji's outlines already fit the budget and splits cost GMSD for no MSE
+//!   (docs/history.md, "The segment budget").
 //!
 //! The mean is [`SEGMENTS_PER_PATH`] when the refinement fills the path budget, which it does
 //! unless it runs out of error regions.
@@ -27,8 +26,8 @@ use crate::scene::{Path, Point};
 /// Mean cubic segments per path the scene ends with.
 pub const SEGMENTS_PER_PATH: f32 = 12.0;
 
-/// Mean per path the init outlines start from, leaving the rest to the splits. With 10 (more
-/// left to split) the 16 bench photos' MSE was 1% higher; above 12 nothing is left.
+/// Mean per path the init outlines start from, leaving the rest to the splits: fewer cost MSE
+/// (docs/history.md, "The segment budget"); above 12 nothing is left.
 pub const INIT_SEGMENTS_PER_PATH: f32 = 11.5;
 
 /// Factor by which the init tolerance grows per attempt to fit [`INIT_SEGMENTS_PER_PATH`].

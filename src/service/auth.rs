@@ -8,10 +8,10 @@ use axum::http::{Method, header};
 use axum::middleware::Next;
 use axum::response::Response;
 
-use super::AppState;
-use super::error::ApiError;
+use super::error::{ApiError, off_async};
 use super::model::{key_id, now_ms};
 use super::signed;
+use super::state::AppState;
 
 /// Who is asking: a hash of their API key, or `None` when the server has no keys.
 /// Only the hash is stored with jobs and logged.
@@ -110,8 +110,6 @@ fn signed_job(state: &AppState, request: &Request) -> Result<String, ApiError> {
 /// job that does not exist is the handler's 404).
 async fn owner_of(state: &AppState, job: String) -> Result<Option<String>, ApiError> {
     let queue = state.queue.clone();
-    let entry = tokio::task::spawn_blocking(move || queue.find(&job))
-        .await
-        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    let entry = off_async(move || queue.find(&job)).await?;
     Ok(entry.and_then(|entry| entry.owner.clone()))
 }

@@ -8,10 +8,10 @@ use axum::response::{IntoResponse, Response};
 
 use super::derived::DerivedError;
 use super::inputs::InputError;
+use super::job::JobFailure;
 use super::model::Problem;
 use super::queue::Refusal;
 use super::rate::RateRefusal;
-use super::runner::JobFailure;
 use super::store::StoreError;
 use super::webhooks::WebhookRefusal;
 use crate::imageio;
@@ -516,6 +516,22 @@ impl IntoResponse for ApiError {
             }
         }
         response
+    }
+}
+
+/// Runs blocking work (the store, the database, decoding) on tokio's blocking threads, off the
+/// async workers; its error, or a panic in it, becomes the answer's problem.
+pub async fn off_async<T, E>(
+    work: impl FnOnce() -> Result<T, E> + Send + 'static,
+) -> Result<T, ApiError>
+where
+    T: Send + 'static,
+    E: Send + 'static,
+    ApiError: From<E>,
+{
+    match tokio::task::spawn_blocking(work).await {
+        Ok(result) => result.map_err(ApiError::from),
+        Err(error) => Err(ApiError::Internal(error.to_string())),
     }
 }
 

@@ -3,8 +3,8 @@
 //!
 //! A key is a client ([`super::auth::Client`]): an API key, or without keys an `X-Client-Key`;
 //! anonymous requests are one key together. The next job is chosen by this rule, the same on
-//! both backends (here for the embedded queue and the copy every replica keeps, and in the
-//! claim statement of [`super::store::Postgres::claim`] for PostgreSQL):
+//! every backend (here for the local queue and the copy every replica keeps, and in the
+//! claim statement of `Postgres::claim` (`backend/shared/postgres/leases.rs`) for PostgreSQL):
 //!
 //! 1. Only keys below their running limit take part.
 //! 2. Interactive jobs go first. A batch job that has waited longer than the batch age counts

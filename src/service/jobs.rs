@@ -1,29 +1,27 @@
-//! The job resource: create, read, list, cancel, delete, and its event stream.
+//! The job resource: create, read, list, cancel, delete (its event stream: `events.rs`).
 
-use std::convert::Infallible;
 use std::sync::Arc;
 use std::time::Duration;
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, Request, State};
-use axum::http::{HeaderMap, HeaderName, HeaderValue, Method, StatusCode, header};
-use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::http::{HeaderMap, HeaderValue, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
 use serde::Deserialize;
 
 use super::auth::{Client, Owner};
-use super::error::{ApiError, JobProblems, TooManyRequests, Unavailable};
+use super::error::{ApiError, JobProblems, TooManyRequests, Unavailable, off_async};
+use super::job::JobEntry;
 use super::model::{
     Idempotency, JobId, JobRecord, Problem, Status, is_job_id, new_job_id, now_ms, rfc3339,
 };
 use super::queue::Admission;
 use super::rate::RateState;
-use super::runner::JobEntry;
 use super::signed;
+use super::state::{AppState, Endpoint, endpoint};
 use super::submit::{self, JsonSubmission, MultipartSubmission, UploadQuery};
-use super::view::{IdempotentReplayed, JobEvent, JobList, JobView, SignedUrls};
-use super::{AppState, Endpoint, endpoint};
+use super::view::{IdempotentReplayed, JobList, JobView, SignedUrls};
 
 pub fn endpoints() -> Vec<Endpoint> {
     vec![
@@ -32,7 +30,6 @@ pub fn endpoints() -> Vec<Endpoint> {
         endpoint(Method::GET, "/v1/jobs/{id}", get),
         endpoint(Method::DELETE, "/v1/jobs/{id}", delete),
         endpoint(Method::POST, "/v1/jobs/{id}/cancel", cancel),
-        endpoint(Method::GET, "/v1/jobs/{id}/events", events),
     ]
 }
 
@@ -47,15 +44,14 @@ pub async fn find(state: &AppState, owner: &Owner, id: &str) -> Result<Arc<JobEn
     }
     tracing::Span::current().record("job_id", id);
     let (queue, id, owner) = (Arc::clone(&state.queue), id.to_owned(), owner.0.clone());
-    tokio::task::spawn_blocking(move || {
-        match queue.find(&id)?.filter(|entry| entry.owner == owner) {
+    off_async(
+        move || match queue.find(&id)?.filter(|entry| entry.owner == owner) {
             Some(entry) => Ok(entry),
             None if queue.expired(&id, &owner)? => Err(ApiError::JobExpired(id)),
             None => Err(ApiError::JobNotFound(id)),
-        }
-    })
+        },
+    )
     .await
-    .map_err(|error| ApiError::Internal(error.to_string()))?
 }
 
 fn view(state: &AppState, entry: &JobEntry) -> JobView {
@@ -70,7 +66,7 @@ fn view(state: &AppState, entry: &JobEntry) -> JobView {
 
 /// `view` with its signed URLs, on a server with API keys (where only the job's owner sees
 /// the job).
-fn with_signed(state: &AppState, mut view: JobView) -> JobView {
+pub(super) fn with_signed(state: &AppState, mut view: JobView) -> JobView {
     if !state.key_ids.is_empty() {
         let (token, expires) = state.signer.token(&view.id, now_ms());
         view.signed = Some(SignedUrls {
@@ -176,10 +172,7 @@ async fn create(
             key.clone(),
             fingerprint.clone(),
         );
-        let earlier =
-            tokio::task::spawn_blocking(move || queue.find_idempotent(&owner, &key, &print))
-                .await
-                .map_err(|error| ApiError::Internal(error.to_string()))??;
+        let earlier = off_async(move || queue.find_idempotent(&owner, &key, &print)).await?;
         if let Some(earlier) = earlier {
             return Ok(with_rate(created(&state, &earlier, true), rate));
         }
@@ -189,15 +182,14 @@ async fn create(
     // with the decoding, which runs on even if the client leaves.
     let slot = state.decode_slot().await?;
     let limits = state.limits.clone();
-    let submission = tokio::task::spawn_blocking(move || {
+    let submission = off_async(move || {
         let _slot = slot;
         submission
             .inputs
             .decode(&limits, options.accept_truncated)
             .map(|_| submission)
     })
-    .await
-    .map_err(|error| ApiError::Internal(error.to_string()))??;
+    .await?;
 
     let id = new_job_id();
     tracing::Span::current().record("job_id", id.as_str());
@@ -216,9 +208,7 @@ async fn create(
         )
     };
     let queue = state.queue.clone();
-    let admission = tokio::task::spawn_blocking(move || queue.admit(record, submission.inputs))
-        .await
-        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    let admission = off_async(move || queue.admit(record, submission.inputs)).await?;
     let (entry, replayed) = match admission {
         Admission::Created(entry) => {
             tracing::info!("job created");
@@ -386,11 +376,8 @@ async fn list(
         )));
     }
     let queue = state.queue.clone();
-    let (page, more) = tokio::task::spawn_blocking(move || {
-        queue.list(&owner.0, status, query.cursor.as_deref(), limit)
-    })
-    .await
-    .map_err(|error| ApiError::Internal(error.to_string()))??;
+    let (page, more) =
+        off_async(move || queue.list(&owner.0, status, query.cursor.as_deref(), limit)).await?;
     let next_cursor = if more {
         page.last().map(|(record, _)| record.id.clone())
     } else {
@@ -426,9 +413,7 @@ async fn cancel(
     let entry = find(&state, &owner, &id).await?;
     let queue = state.queue.clone();
     let cancel_entry = entry.clone();
-    let stopping = tokio::task::spawn_blocking(move || queue.cancel(&cancel_entry))
-        .await
-        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    let stopping = off_async(move || queue.cancel(&cancel_entry)).await?;
     let status = if stopping {
         StatusCode::ACCEPTED
     } else {
@@ -458,160 +443,6 @@ async fn delete(
 ) -> Result<StatusCode, ApiError> {
     let entry = find(&state, &owner, &id).await?;
     let queue = state.queue.clone();
-    tokio::task::spawn_blocking(move || queue.delete(&entry))
-        .await
-        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    off_async(move || queue.delete(&entry)).await?;
     Ok(StatusCode::NO_CONTENT)
-}
-
-/// Shortest gap between two progress events; the latest state always gets through.
-const EVENT_INTERVAL: Duration = Duration::from_millis(100);
-
-/// Server-Sent Events: `progress` events while the job is queued or running, then one
-/// `completed` event with the final job, then the stream ends. `X-Accel-Buffering: no` asks a
-/// proxy in front (nginx, ingress-nginx) to pass events as they come rather than buffer the
-/// stream until the job ends, and `Cache-Control: no-cache` keeps caches from storing it.
-#[utoipa::path(get, path = "/v1/jobs/{id}/events", tag = "jobs", operation_id = "jobEvents",
-    summary = "Server-Sent Events of the job's progress",
-    description = "`event: progress` with the job (as in `GET /v1/jobs/{id}`) whenever it \
-        changes (at most every 100 ms), then one `event: completed` with the final job, then the \
-        stream ends. Every event carries the whole job, and its `id:` is `{sequence}.{digest}`. \
-        Reconnecting with `Last-Event-ID` (as EventSource does) misses nothing and repeats \
-        nothing: the first event is the current state unless the client has it already (then the \
-        next change, or, for an ended job, an empty stream), numbered after the given id. A \
-        malformed id is ignored. A keep-alive comment is sent every 15 s. The response carries \
-        `X-Accel-Buffering: no` (nginx and ingress-nginx then pass events through unbuffered) \
-        and `Cache-Control: no-cache`.",
-    params(("id" = JobId, Path), ("Last-Event-ID" = Option<String>, Header)),
-    responses(
-        (status = 200, description = "The event stream.", body = JobEvent, content_type = "text/event-stream"),
-        JobProblems,
-    ),
-)]
-async fn events(
-    State(state): State<AppState>,
-    Extension(owner): Extension<Owner>,
-    Path(id): Path<String>,
-    headers: HeaderMap,
-) -> Result<impl IntoResponse, ApiError> {
-    let entry = find(&state, &owner, &id).await?;
-    let receiver = entry.record.subscribe();
-    let shutdown = state.shutdown.subscribe();
-    let resumed = headers
-        .get(LAST_EVENT_ID)
-        .and_then(|value| value.to_str().ok())
-        .and_then(EventId::parse);
-    let start = Cursor {
-        sequence: resumed.map_or(0, |id| id.sequence + 1),
-        waiting: false,
-        seen: resumed.map(|id| id.digest),
-        done: false,
-    };
-    let stream = futures_util::stream::unfold(
-        (receiver, shutdown, state, start),
-        |(mut receiver, mut shutdown, state, mut cursor)| async move {
-            if cursor.done {
-                return None;
-            }
-            loop {
-                if cursor.waiting {
-                    tokio::time::sleep(EVENT_INTERVAL).await;
-                    tokio::select! {
-                        changed = receiver.changed() => changed.ok()?,
-                        _ = shutdown.wait_for(|stopping| *stopping) => return None,
-                    }
-                }
-                let record = receiver.borrow_and_update().clone();
-                let placement = if record.status == Status::Queued {
-                    state.queue.placement(&record.id)
-                } else {
-                    None
-                };
-                let terminal = record.status.is_terminal();
-                let data =
-                    serde_json::to_string(&with_signed(&state, JobView::new(&record, placement)))
-                        .expect("views serialise");
-                let digest = EventId::digest_of(&data);
-                if cursor.seen.take() == Some(digest) {
-                    // The client has this state already (it resumed with its id).
-                    if terminal {
-                        return None;
-                    }
-                    cursor.waiting = true;
-                    continue;
-                }
-                let id = EventId {
-                    sequence: cursor.sequence,
-                    digest,
-                };
-                let event = Event::default()
-                    .id(id.to_string())
-                    .event(if terminal { "completed" } else { "progress" })
-                    .data(data);
-                let next = Cursor {
-                    sequence: cursor.sequence + 1,
-                    waiting: true,
-                    seen: None,
-                    done: terminal,
-                };
-                return Some((
-                    Ok::<_, Infallible>(event),
-                    (receiver, shutdown, state, next),
-                ));
-            }
-        },
-    );
-    Ok((
-        [
-            (header::CACHE_CONTROL, "no-cache"),
-            (HeaderName::from_static("x-accel-buffering"), "no"),
-        ],
-        Sse::new(stream).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))),
-    ))
-}
-
-const LAST_EVENT_ID: &str = "last-event-id";
-
-/// Where an event stream stands.
-#[derive(Clone, Copy)]
-struct Cursor {
-    sequence: u64,
-    /// Wait for a change before the next event (not before the first).
-    waiting: bool,
-    /// The digest of the state a resuming client has: not sent again.
-    seen: Option<u64>,
-    done: bool,
-}
-
-/// An event's id, `{sequence}.{digest}`. Every event carries the job's whole state, so a
-/// client that reconnects with `Last-Event-ID` misses nothing: it gets the current state, unless
-/// the digest says it has that one already (then the next change, or, for an ended job,
-/// nothing), and sequences go on from its id.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct EventId {
-    sequence: u64,
-    digest: u64,
-}
-
-impl EventId {
-    fn parse(text: &str) -> Option<Self> {
-        let (sequence, digest) = text.trim().split_once('.')?;
-        Some(Self {
-            sequence: sequence.parse().ok()?,
-            digest: u64::from_str_radix(digest, 16).ok()?,
-        })
-    }
-
-    /// FNV-1a of the event's data: the same in every process, unlike std's hasher.
-    fn digest_of(data: &str) -> u64 {
-        data.bytes().fold(0xcbf2_9ce4_8422_2325, |hash, byte| {
-            (hash ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3)
-        })
-    }
-}
-
-impl std::fmt::Display for EventId {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}.{:016x}", self.sequence, self.digest)
-    }
 }

@@ -5,7 +5,7 @@ use axum::Json;
 use axum::extract::State;
 use axum::http::Method;
 
-use super::{AppState, Endpoint, endpoint};
+use super::state::{AppState, Endpoint, endpoint};
 use crate::edit::ReferenceParams;
 use crate::imageio::ACCEPTED_MEDIA_TYPES;
 use crate::pipeline::{MIN_PATHS, MIN_SIZE, Params};

@@ -8,18 +8,22 @@
 //!
 //! Each resource module lists its routes as [`Endpoint`]s; [`app`] builds the router from
 //! [`endpoints`], which a test compares with the OpenAPI document ([`openapi_document`],
-//! generated from the handlers' attributes).
+//! generated from the handlers' attributes). This file assembles: the settings, the router;
+//! what the handlers share is in `state.rs`, serving and draining in `serve.rs`.
 
 mod auth;
+mod backend;
 mod conn;
 mod derived;
 mod download;
 mod edits;
 mod error;
+mod events;
 mod fair;
 #[doc(hidden)]
 pub mod fuzzing;
 mod inputs;
+mod job;
 mod jobs;
 mod limits;
 mod model;
@@ -29,35 +33,34 @@ mod queue;
 mod rate;
 mod results;
 mod runner;
+mod serve;
 mod signed;
+mod state;
 mod store;
 mod submit;
 mod telemetry;
 mod view;
 mod webhooks;
-mod worker;
 
+pub use backend::RecordsAt;
 pub use conn::ConnectionLimits;
 pub use fair::{KeyLimits, Scheduling};
 pub use inputs::InputLimits;
 pub use openapi::document as openapi_document;
 pub use ops::LIVENESS_PATH;
 pub use queue::QueueConfig;
+pub use serve::{serve, work};
+pub use state::{AppState, Endpoint, ServeError};
 pub use webhooks::{WebhookConfig, WebhookConfigError};
 
-use std::collections::HashSet;
 use std::net::SocketAddr;
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Router;
 use axum::extract::Request;
-use axum::handler::Handler;
 use axum::http::{HeaderValue, Method};
 use axum::middleware;
-use axum::routing::{MethodFilter, MethodRouter, on};
-use tokio::sync::watch;
 use tower_http::compression::CompressionLayer;
 use tower_http::cors::{AllowHeaders, AllowOrigin, Any, CorsLayer};
 use tower_http::request_id::{
@@ -66,9 +69,6 @@ use tower_http::request_id::{
 use tower_http::trace::TraceLayer;
 
 use error::ApiError;
-use queue::{Queue, QueueError};
-use store::{Store, StoreError};
-use telemetry::Metrics;
 
 /// Everything `covec serve` can be told.
 #[derive(Clone, Debug)]
@@ -80,10 +80,10 @@ pub struct Config {
     /// Artefacts in this S3-compatible bucket (`s3://bucket/prefix`, credentials, region and
     /// endpoint from the usual `AWS_*` variables) instead of the data directory. Default none.
     pub object_store: Option<String>,
-    /// Job records, the queue and idempotency keys in this PostgreSQL database
-    /// (`postgres://…`), shared with other replicas and `covec worker`s, instead of SQLite in
-    /// the data directory. Default none.
-    pub database_url: Option<String>,
+    /// Where job records, the queue and idempotency keys live: SQLite in the data directory
+    /// (the default), a PostgreSQL database shared with other replicas and `covec worker`s, or
+    /// this process's memory.
+    pub records: RecordsAt,
     /// Workers, queue length, time limit, retention.
     pub queue: QueueConfig,
     /// What one job may send and ask for.
@@ -117,7 +117,7 @@ impl Default for Config {
             addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
             data_dir: PathBuf::from("covec-data"),
             object_store: None,
-            database_url: None,
+            records: RecordsAt::default(),
             queue: QueueConfig::default(),
             limits: InputLimits::default(),
             connections: ConnectionLimits::default(),
@@ -153,155 +153,11 @@ impl Default for SignedUrlConfig {
     }
 }
 
-/// Shared by every handler.
-#[derive(Clone)]
-pub struct AppState {
-    queue: Arc<Queue>,
-    metrics: Arc<Metrics>,
-    limits: InputLimits,
-    key_ids: Arc<HashSet<String>>,
-    cors_origins: Arc<Vec<String>>,
-    /// Becomes true when the server begins to stop (ends event streams).
-    shutdown: watch::Sender<bool>,
-    max_wait: Duration,
-    /// Bounds the renders of derived files running at once ([`derived::RENDERS`]).
-    renders: Arc<tokio::sync::Semaphore>,
-    /// Where those renders run: threads below the HTTP threads' priority.
-    render_pool: Arc<rayon::ThreadPool>,
-    /// Signs and checks signed result URLs.
-    signer: Arc<signed::UrlSigner>,
-    /// `/metrics` is served on the ops port, not here.
-    metrics_elsewhere: bool,
-    webhooks: Arc<webhooks::Webhooks>,
-    /// Per-key submission rates.
-    rates: Arc<fair::SubmissionRates>,
-}
-
-/// Why the server could not start or stopped with an error.
-#[derive(Debug, thiserror::Error)]
-pub enum ServeError {
-    /// The data directory or job database.
-    #[error(transparent)]
-    Store(#[from] StoreError),
-    /// Starting the workers.
-    #[error(transparent)]
-    Queue(#[from] QueueError),
-    /// The listening address.
-    #[error("cannot listen on {addr}: {source}")]
-    #[allow(missing_docs)]
-    Bind {
-        addr: SocketAddr,
-        source: std::io::Error,
-    },
-    /// Serving connections.
-    #[error("server: {0}")]
-    Io(#[from] std::io::Error),
-    /// A `--cors-origins` value.
-    #[error("CORS origin `{0}` is not a valid header value")]
-    CorsOrigin(String),
-    /// The webhook settings.
-    #[error(transparent)]
-    Webhooks(#[from] WebhookConfigError),
-    /// Starting `covec worker`'s job slots.
-    #[error(transparent)]
-    Workers(#[from] worker::WorkerError),
-    /// No API keys on an address other hosts can reach, without `allow_anonymous`.
-    #[error(
-        "refusing to serve {0} without API keys: anyone who reaches it could read every job; give --api-keys (COVEC_API_KEYS), listen on loopback, or pass --allow-anonymous (COVEC_ALLOW_ANONYMOUS=true)"
-    )]
-    Anonymous(SocketAddr),
-}
-
-impl AppState {
-    /// Opens the data directory, recovers jobs and starts the workers. Call inside the runtime.
-    pub fn open(config: &Config) -> Result<Self, ServeError> {
-        for origin in &config.cors_origins {
-            if origin != "*" && HeaderValue::from_str(origin).is_err() {
-                return Err(ServeError::CorsOrigin(origin.clone()));
-            }
-        }
-        let store = Arc::new(Store::open(
-            &config.data_dir,
-            config.object_store.as_deref(),
-            config.database_url.as_deref(),
-        )?);
-        let metrics = Arc::new(Metrics::default());
-        let queue = Queue::start(
-            config.queue.clone(),
-            config.limits.clone(),
-            store,
-            metrics.clone(),
-        )?;
-        let webhooks = webhooks::Webhooks::start(config.webhooks.clone(), queue.clone())?;
-        webhooks.resume()?;
-        let signer = signed::UrlSigner::new(
-            config.signed_urls.secret.as_deref(),
-            config.signed_urls.lifetime,
-        )?;
-        Ok(Self {
-            webhooks,
-            queue,
-            metrics,
-            limits: config.limits.clone(),
-            key_ids: Arc::new(
-                config
-                    .api_keys
-                    .iter()
-                    .map(|key| model::key_id(key))
-                    .collect(),
-            ),
-            cors_origins: Arc::new(config.cors_origins.clone()),
-            shutdown: watch::Sender::new(false),
-            max_wait: config.max_wait,
-            renders: Arc::new(tokio::sync::Semaphore::new(derived::RENDERS)),
-            render_pool: Arc::new(derived::render_pool(config.queue.threads)?),
-            signer: Arc::new(signer),
-            metrics_elsewhere: config.ops_addr.is_some(),
-            rates: Arc::new(fair::SubmissionRates::new(&config.queue.scheduling)),
-        })
-    }
-}
-
-impl AppState {
-    /// A permit to decode one request's images: waits up to [`InputLimits::decode_wait`] for
-    /// one of the [`InputLimits::decode_slots`], then refuses with 503 `decode-busy`.
-    async fn decode_slot(&self) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
-        let permit = self.queue.decode_slots().acquire_owned();
-        let wait = self.limits.decode_wait;
-        match tokio::time::timeout(wait, permit).await {
-            Ok(permit) => permit.map_err(|error| ApiError::Internal(error.to_string())),
-            // A client told to retry at once would only be refused again.
-            Err(_) => Err(ApiError::DecodeBusy(wait.as_secs().max(1))),
-        }
-    }
-}
-
-/// One route: a method and an OpenAPI-style path, with its handler.
-pub struct Endpoint {
-    /// The HTTP method.
-    pub method: Method,
-    /// The path as the OpenAPI document writes it, e.g. `/v1/jobs/{id}`.
-    pub path: &'static str,
-    handler: MethodRouter<AppState>,
-}
-
-fn endpoint<H, T>(method: Method, path: &'static str, handler: H) -> Endpoint
-where
-    H: Handler<T, AppState>,
-    T: 'static,
-{
-    let filter = MethodFilter::try_from(method.clone()).expect("endpoints use standard methods");
-    Endpoint {
-        method,
-        path,
-        handler: on(filter, handler),
-    }
-}
-
 /// Every API route of the service. The web page (`/`, [`crate::web::routes`]) is merged in
 /// [`app`]: it is not part of the API document.
 pub fn endpoints() -> Vec<Endpoint> {
     let mut all = jobs::endpoints();
+    all.extend(events::endpoints());
     all.extend(results::endpoints());
     all.extend(edits::endpoints());
     all.extend(limits::endpoints());
@@ -380,217 +236,6 @@ fn cors_layer(origins: &[String]) -> CorsLayer {
             .map(|origin| HeaderValue::from_str(origin).expect("checked in AppState::open"));
         layer.allow_origin(AllowOrigin::list(values))
     }
-}
-
-/// Runs the service until SIGINT/SIGTERM, then drains: stops accepting and starting jobs, ends
-/// event streams and idle connections, lets running jobs and responses finish for
-/// `shutdown_grace` (longer jobs are re-queued for the next start, other connections dropped).
-/// `on_listening` gets the bound address (useful with port 0).
-pub async fn serve(
-    config: Config,
-    on_listening: impl FnOnce(SocketAddr),
-) -> Result<(), ServeError> {
-    if config.api_keys.is_empty() && !config.allow_anonymous && !config.addr.ip().is_loopback() {
-        return Err(ServeError::Anonymous(config.addr));
-    }
-    let state = AppState::open(&config)?;
-    let listener = tokio::net::TcpListener::bind(config.addr)
-        .await
-        .map_err(|source| ServeError::Bind {
-            addr: config.addr,
-            source,
-        })?;
-    let addr = listener.local_addr()?;
-    tracing::info!(%addr, data_dir = %config.data_dir.display(), workers = state.queue.workers(), "listening");
-    on_listening(addr);
-
-    let sweeper = tokio::spawn(sweep_expired(
-        state.queue.clone(),
-        state.rates.clone(),
-        config
-            .queue
-            .retention
-            .min(config.queue.record_retention)
-            .min(config.queue.idempotency_window),
-        config.queue.orphan_age,
-    ));
-    let metrics_upkeep = tokio::spawn(telemetry::upkeep(state.metrics.clone()));
-    let ops_port = match config.ops_addr {
-        Some(addr) => {
-            let listener = tokio::net::TcpListener::bind(addr)
-                .await
-                .map_err(|source| ServeError::Bind { addr, source })?;
-            tracing::info!(addr = %listener.local_addr()?, "probes and metrics");
-            Some(tokio::spawn(conn::accept(
-                listener,
-                ops::serve_app(state.clone()),
-                config.connections,
-                state.shutdown.subscribe(),
-            )))
-        }
-        None => None,
-    };
-    let shutdown = state.shutdown.clone();
-    let signal = tokio::spawn(async move {
-        stop_signal().await;
-        shutdown.send_replace(true);
-    });
-    let connections = conn::accept(
-        listener,
-        app(state.clone()),
-        config.connections,
-        state.shutdown.subscribe(),
-    )
-    .await;
-    tracing::info!("shutting down: no new connections or jobs");
-    signal.abort();
-    sweeper.abort();
-    metrics_upkeep.abort();
-    // Jobs and connections wind down together, so the whole stop takes one grace period.
-    let queue = state.queue.clone();
-    let grace = config.shutdown_grace;
-    let drain = tokio::task::spawn_blocking(move || queue.drain(grace));
-    conn::close(connections, grace).await;
-    if let Some(Ok(connections)) = match ops_port {
-        Some(port) => Some(port.await),
-        None => None,
-    } {
-        conn::close(connections, Duration::from_secs(1)).await;
-    }
-    drain.await.map_err(std::io::Error::other)?;
-    tracing::info!("stopped");
-    Ok(())
-}
-
-/// Runs `covec worker`: job slots on the shared backend ([`worker::Workers`]), without an
-/// HTTP API, until SIGINT/SIGTERM; then running jobs finish for `shutdown_grace` or go back to
-/// the queue. Uses the data directory or object store, the database, the queue's workers,
-/// threads, time limit, retention and lease, the input and connection limits of `config`.
-/// Given `ops_addr`, serves the worker's probes and metrics there
-/// ([`ops::worker_app`]); `on_listening` gets the bound address.
-pub async fn work(
-    config: Config,
-    ops_addr: Option<SocketAddr>,
-    on_listening: impl FnOnce(SocketAddr),
-) -> Result<(), ServeError> {
-    let Some(database_url) = config.database_url.as_deref() else {
-        return Err(ServeError::Workers(worker::WorkerError::NotShared));
-    };
-    let store = Arc::new(Store::open(
-        &config.data_dir,
-        config.object_store.as_deref(),
-        Some(database_url),
-    )?);
-    // Job durations are recorded here (for `/metrics` on the ops port, if any), so the samples
-    // need upkeep.
-    let metrics = Arc::new(Metrics::default());
-    let metrics_upkeep = tokio::spawn(telemetry::upkeep(metrics.clone()));
-    let runner = Arc::new(runner::Runner {
-        decode_slots: Arc::new(tokio::sync::Semaphore::new(
-            config.limits.decode_slots.max(1),
-        )),
-        store,
-        limits: config.limits.clone(),
-        runtime: tokio::runtime::Handle::current(),
-        job_time_limit: config.queue.job_time_limit,
-        retention: config.queue.retention,
-        metrics: metrics.clone(),
-    });
-    let slots = config.queue.workers.max(1);
-    let workers = worker::Workers::start(
-        runner,
-        &worker::WorkerConfig {
-            slots,
-            threads: config.queue.threads,
-            lease: config.queue.lease,
-            scheduling: config.queue.scheduling.clone(),
-        },
-    )?;
-    tracing::info!(slots, "worker started");
-    let (stopping, stopped) = tokio::sync::watch::channel(false);
-    let ops_port = match ops_addr {
-        Some(addr) => {
-            let listener = tokio::net::TcpListener::bind(addr)
-                .await
-                .map_err(|source| ServeError::Bind { addr, source })?;
-            let addr = listener.local_addr()?;
-            tracing::info!(%addr, "probes and metrics");
-            on_listening(addr);
-            let app = ops::worker_app(&workers);
-            Some(tokio::spawn(conn::accept(
-                listener,
-                app,
-                config.connections,
-                stopped,
-            )))
-        }
-        None => None,
-    };
-    stop_signal().await;
-    tracing::info!("shutting down: no new jobs");
-    let grace = config.shutdown_grace;
-    tokio::task::spawn_blocking(move || workers.drain(grace))
-        .await
-        .map_err(std::io::Error::other)?;
-    // Probes answered "not ready" while the jobs drained; now the port closes.
-    stopping.send_replace(true);
-    if let Some(Ok(connections)) = match ops_port {
-        Some(port) => Some(port.await),
-        None => None,
-    } {
-        conn::close(connections, Duration::from_secs(1)).await;
-    }
-    metrics_upkeep.abort();
-    tracing::info!("stopped");
-    Ok(())
-}
-
-/// Removes expired results, records and Idempotency-Keys, job directories no job owns, and
-/// the rate state of keys idle for a while, periodically (a tenth of the shortest of
-/// `retention` and the other two periods, 1 to 60 s).
-async fn sweep_expired(
-    queue: Arc<Queue>,
-    rates: Arc<fair::SubmissionRates>,
-    retention: Duration,
-    orphan_age: Duration,
-) {
-    let period = (retention / 10).clamp(Duration::from_secs(1), Duration::from_secs(60));
-    let mut ticks = tokio::time::interval(period);
-    loop {
-        ticks.tick().await;
-        rates.shrink();
-        let queue = queue.clone();
-        let (removed, orphans) = tokio::task::spawn_blocking(move || {
-            (
-                queue.expire(model::now_ms()),
-                queue.sweep_orphans(orphan_age),
-            )
-        })
-        .await
-        .unwrap_or((0, 0));
-        if removed > 0 {
-            tracing::info!(removed, "expired job results removed");
-        }
-        if orphans > 0 {
-            tracing::info!(orphans, "orphaned job directories removed");
-        }
-    }
-}
-
-async fn stop_signal() {
-    let interrupt = tokio::signal::ctrl_c();
-    #[cfg(unix)]
-    {
-        let mut terminate =
-            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-                .expect("SIGTERM handler");
-        tokio::select! {
-            _ = interrupt => {}
-            _ = terminate.recv() => {}
-        }
-    }
-    #[cfg(not(unix))]
-    let _ = interrupt.await;
 }
 
 #[cfg(test)]

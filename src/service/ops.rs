@@ -11,12 +11,12 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 
+use super::backend::Workers;
 use super::error::ApiError;
 use super::model::Problem;
+use super::state::{AppState, Endpoint, endpoint};
 use super::store::StoreError;
 use super::telemetry::{Metrics, QueueGauges};
-use super::worker::Workers;
-use super::{AppState, Endpoint, endpoint};
 
 /// The liveness probe's path, on the API port and on a worker's `--ops-addr`.
 pub const LIVENESS_PATH: &str = "/healthz";

@@ -15,11 +15,11 @@ use utoipa::openapi::{ObjectBuilder, RefOr, Schema, Type};
 
 use super::derived::{self, Derived};
 use super::download::{Download, etag_of, filename};
-use super::error::{ApiError, FileProblems, JobProblems};
+use super::error::{ApiError, FileProblems, JobProblems, off_async};
 use super::jobs::find;
 use super::model::{JobId, JobRecord, Problem, Status};
 use super::queue::Queue;
-use super::{AppState, Endpoint, endpoint};
+use super::state::{AppState, Endpoint, endpoint};
 use crate::output::FileKind;
 use crate::scene::{LayerKind, Scene};
 
@@ -149,11 +149,8 @@ pub(super) async fn artefact(
 ) -> Result<Response, ApiError> {
     let queue = state.queue.clone();
     let (job, name) = (record.id.clone(), file.name);
-    let (name, bytes) = tokio::task::spawn_blocking(move || {
-        queue.read_result(&job, &name).map(|bytes| (name, bytes))
-    })
-    .await
-    .map_err(|error| ApiError::Internal(error.to_string()))??;
+    let (name, bytes) =
+        off_async(move || queue.read_result(&job, &name).map(|bytes| (name, bytes))).await?;
     let bytes = bytes.ok_or(ApiError::ResultNotFound(name))?;
     let download = Download::of(record, etag_of(&[&bytes]), file.filename, file.media_type);
     Ok(download.respond(request, || bytes))
@@ -308,9 +305,7 @@ async fn stored_copy(
 async fn blocking<T: Send + 'static>(
     work: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
 ) -> Result<T, ApiError> {
-    tokio::task::spawn_blocking(work)
-        .await
-        .map_err(|error| ApiError::Internal(error.to_string()))?
+    off_async(work).await
 }
 
 #[utoipa::path(get, path = "/v1/jobs/{id}/layers/{file}", tag = "results",

@@ -1,5 +1,7 @@
 //! The router's own tests: routes, limits and headers on an app without a socket.
 
+use std::sync::Arc;
+
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use tower::ServiceExt;

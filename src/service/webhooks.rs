@@ -33,14 +33,14 @@ use serde::Serialize;
 use sha2::Sha256;
 use tracing::{info, warn};
 
+use super::job::JobEntry;
 use super::model::{
     Attempt, Delivery, DeliveryStatus, JobRecord, Status, Webhook, WebhookEvent, now_ms,
 };
 use super::queue::Queue;
-use super::runner::JobEntry;
+use super::queue::REAP_EVERY;
 use super::store::StoreError;
 use super::view::WebhookMessage;
-use super::worker::REAP_EVERY;
 
 /// Webhook settings of `covec serve`.
 #[derive(Clone, Debug)]

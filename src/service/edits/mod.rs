@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 
 use super::auth::Owner;
 use super::derived::Derived;
-use super::error::{ApiError, FileProblems, ResultProblems, Unavailable};
+use super::error::{ApiError, FileProblems, ResultProblems, Unavailable, off_async};
 use super::inputs::{InputError, InputKind};
 use super::jobs::find;
 use super::model::{JobId, JobRecord, Problem};
@@ -19,9 +19,9 @@ use super::results::{
     Binary, PngQuery, SceneFiles, SceneJson, Stored, SvgQuery, artefact, derived_file,
     require_success, stored_scene,
 };
+use super::state::{AppState, Endpoint, endpoint};
 use super::store::digest;
 use super::submit::{UploadQuery, read_body};
-use super::{AppState, Endpoint, endpoint};
 use crate::edit::{self, ColorChange, Edit, ReferenceParams, Target};
 use crate::imageio;
 use crate::output::{self, EDIT_FILES, FileKind};
@@ -123,7 +123,7 @@ async fn create(
     let queue = state.queue.clone();
     let max_pixels = state.limits.max_pixels;
     let job_id = id.clone();
-    let record = tokio::task::spawn_blocking(move || {
+    let record = off_async(move || {
         let _slot = slot;
         let store = queue.store();
         let read = |name: &str| store.read_artefact(&job_id, name).map_err(ApiError::from);
@@ -163,8 +163,7 @@ async fn create(
         let edit = edit.map_err(|e| ApiError::InvalidInput(e.to_string()))?;
         store_edit(&queue, &job_id, base, kind, &edit)
     })
-    .await
-    .map_err(|e| ApiError::Internal(e.to_string()))??;
+    .await?;
 
     let mut response = (StatusCode::CREATED, Json(&record)).into_response();
     if let Ok(location) = HeaderValue::from_str(&record.urls.this) {
@@ -373,9 +372,7 @@ async fn edit_files(
     // The record says the edit exists; only its size is looked at, never its changes.
     let queue = state.queue.clone();
     let (job, edit) = (id.clone(), edit_record(&edit_id));
-    let exists = tokio::task::spawn_blocking(move || queue.store().has_artefact(&job, &edit))
-        .await
-        .map_err(|error| ApiError::Internal(error.to_string()))??;
+    let exists = off_async(move || queue.store().has_artefact(&job, &edit)).await?;
     if !exists {
         return Err(ApiError::ResultNotFound(edit_record(&edit_id)));
     }

@@ -1,5 +1,6 @@
 //! The job queue: the live state of jobs, the fair rule that orders them, and the operations
-//! on them, over one of two backends ([`backend`]: embedded or shared).
+//! on them, over a backend ([`Backend`]: the seam each backend implements in its folder under
+//! `service/backend/`).
 //!
 //! Live job state is held in memory (one `watch` channel per job, so polls and SSE streams read
 //! it without touching the database): the queued and running jobs, and ended jobs only while
@@ -8,9 +9,8 @@
 //! records are deleted after the record retention ([`Queue::expire`]).
 
 mod backend;
-mod embedded;
-mod shared;
-mod state;
+mod local;
+pub mod state;
 
 use std::collections::HashMap;
 use std::sync::atomic::Ordering;
@@ -22,17 +22,25 @@ use tracing::{info, info_span, warn};
 
 use super::fair::Scheduling;
 use super::inputs::{EncodedInputs, InputLimits};
+use super::job::{JobEntry, lock};
 use super::model::{CancelReason, JobRecord, Placement, Status, now_ms};
-use super::runner::{JobEntry, Runner, lock};
+use super::runner::Runner;
 use super::store::{Store, StoreError, digest, retry_transient};
 use super::telemetry::{Metrics, QueueGauges};
-use super::worker::{DEFAULT_LEASE, WorkerError};
-use backend::Backend;
+pub use backend::Backend;
+pub use local::Local;
 use state::State;
 
 /// Most records one statement of [`Queue::expire`] handles: its transaction stays short, and a
 /// backlog (a server stopped for days) is worked off in batches.
 const EXPIRY_BATCH: usize = 1000;
+
+/// How often expired leases are taken back, and webhook deliveries another process stopped
+/// making are taken over.
+pub const REAP_EVERY: Duration = Duration::from_secs(2);
+
+/// The default lease (see [`QueueConfig::lease`]).
+pub const DEFAULT_LEASE: Duration = Duration::from_secs(30);
 
 /// Queue and worker settings.
 #[derive(Clone, Debug)]
@@ -85,25 +93,27 @@ impl Default for QueueConfig {
 
 impl QueueConfig {
     /// Creation time (Unix ms) from which Idempotency-Keys still hold.
-    fn keys_since(&self) -> u64 {
+    pub fn keys_since(&self) -> u64 {
         now_ms().saturating_sub(self.idempotency_window.as_millis() as u64)
     }
 }
 
+/// The fields are the backends' to use (`service/backend/`); the rest of the service goes
+/// through the methods.
 pub struct Queue {
-    config: QueueConfig,
+    pub(crate) config: QueueConfig,
     /// Runs jobs; its decode slots ([`InputLimits::decode_slots`]) are shared by the requests
     /// that decode a submission and the runners that decode a job's stored inputs: both hold
     /// a full-size decode in memory, so both count against one bound.
-    runner: Arc<Runner>,
-    metrics: Arc<Metrics>,
-    state: Mutex<State>,
+    pub(crate) runner: Arc<Runner>,
+    pub(crate) metrics: Arc<Metrics>,
+    pub(crate) state: Mutex<State>,
     /// Signalled when a job is queued, a job ends, or draining starts.
-    changed: Condvar,
-    /// What differs between the embedded backend and the shared one.
-    backend: Backend,
-    /// Embedded runners, and the shared backend's follower thread.
-    threads: Mutex<Vec<JoinHandle<()>>>,
+    pub(crate) changed: Condvar,
+    /// What differs between backends.
+    backend: Box<dyn Backend>,
+    /// Local runners, or the shared backend's follower thread.
+    pub(crate) threads: Mutex<Vec<JoinHandle<()>>>,
 }
 
 /// Which jobs' webhook deliveries this process makes, as the backend decides
@@ -171,18 +181,18 @@ pub enum QueueError {
     Pool(#[from] rayon::ThreadPoolBuildError),
     #[error("worker thread: {0}")]
     Thread(#[from] std::io::Error),
-    #[error(transparent)]
-    Workers(#[from] WorkerError),
 }
 
 impl Queue {
-    /// Loads the queued and running jobs, queued again (a run cut short by the stop starts
-    /// over), and starts the runners. Call from inside the tokio runtime.
+    /// Loads the jobs `backend` holds (on a local one the queued and running jobs, queued
+    /// again: a run cut short by the stop starts over), and starts its runners. Call from
+    /// inside the tokio runtime.
     pub fn start(
         mut config: QueueConfig,
         limits: InputLimits,
         store: Arc<Store>,
         metrics: Arc<Metrics>,
+        mut backend: Box<dyn Backend>,
     ) -> Result<Arc<Self>, QueueError> {
         let runner = Arc::new(Runner {
             decode_slots: Arc::new(tokio::sync::Semaphore::new(limits.decode_slots.max(1))),
@@ -194,7 +204,7 @@ impl Queue {
             metrics: Arc::clone(&metrics),
         });
         let mut state = State::new();
-        let backend = Backend::open(&runner, &mut config, &metrics, &mut state)?;
+        backend.open(&runner, &mut config, &metrics, &mut state)?;
         let queue = Arc::new(Self {
             config,
             runner,
@@ -546,12 +556,12 @@ fn expire_records(queue: &Queue, now: u64) {
 }
 
 /// Persists a job's record, retrying transient failures.
-fn save(store: &Store, entry: &JobEntry) -> Result<(), Refusal> {
+pub(crate) fn save(store: &Store, entry: &JobEntry) -> Result<(), Refusal> {
     retry_transient("saving the job", || store.save(&entry.snapshot())).map_err(Refusal::from)
 }
 
 /// Removes a deleted job's files; what cannot be removed is left to the orphan sweep.
-fn remove_deleted_files(store: &Store, id: &str) {
+pub(crate) fn remove_deleted_files(store: &Store, id: &str) {
     if let Err(error) = store.remove_artefacts(id) {
         warn!(job_id = %id, "removing a deleted job's files (left to the sweep): {error}");
     }

@@ -7,14 +7,14 @@ use std::sync::{Arc, Weak};
 
 use super::{QueueConfig, Refusal};
 use crate::service::fair::FairQueue;
+use crate::service::job::JobEntry;
 use crate::service::model::{Placement, now_ms};
-use crate::service::runner::JobEntry;
 use crate::service::telemetry::Metrics;
 
 /// Ended jobs held in memory below which [`State::hold`] does not look for released ones.
 const HELD_PRUNE_MIN: usize = 256;
 
-pub(super) struct State {
+pub struct State {
     /// The queued and running jobs by id (ids sort by creation time).
     pub live: BTreeMap<String, Arc<JobEntry>>,
     /// Ended jobs by id while something holds their entry, so every holder shares one (a
@@ -172,7 +172,7 @@ impl State {
 
 /// 503 `queue-full`, with the time for the queue ahead to clear from the mean job duration so
 /// far.
-pub(super) fn queue_full(config: &QueueConfig, metrics: &Metrics, queued: usize) -> Refusal {
+pub fn queue_full(config: &QueueConfig, metrics: &Metrics, queued: usize) -> Refusal {
     let mean = metrics.mean_job_seconds().unwrap_or(10.0);
     let seconds = (queued as f64 * mean / config.workers.max(1) as f64)
         .ceil()

@@ -32,9 +32,6 @@ pub enum StoreError {
     /// The database client's runtime stopped while a request was waiting (shutdown).
     #[error("job database: stopped")]
     DatabaseStopped,
-    /// An operation of the SQLite records asked of the PostgreSQL backend.
-    #[error("job database: not available on the PostgreSQL backend")]
-    NotEmbedded,
 }
 
 impl StoreError {
@@ -54,10 +51,9 @@ impl StoreError {
             }
             StoreError::ObjectStoreUrl { .. } => "object store: misconfigured".to_owned(),
             // PostgreSQL's messages may name hosts and users.
-            StoreError::Postgres(_)
-            | StoreError::DatabasePool(_)
-            | StoreError::DatabaseStopped
-            | StoreError::NotEmbedded => "job database: request failed".to_owned(),
+            StoreError::Postgres(_) | StoreError::DatabasePool(_) | StoreError::DatabaseStopped => {
+                "job database: request failed".to_owned()
+            }
             StoreError::DatabaseUrl(_) => "job database: misconfigured".to_owned(),
         }
     }
@@ -108,7 +104,6 @@ impl StoreError {
             StoreError::Sqlite(_)
             | StoreError::DatabaseUrl(_)
             | StoreError::DatabaseStopped
-            | StoreError::NotEmbedded
             | StoreError::CorruptRecord { .. }
             | StoreError::ObjectStoreUrl { .. }
             | StoreError::ObjectStoreStopped => false,
@@ -218,7 +213,7 @@ pub fn retry_transient<T>(
 }
 
 /// Wraps an I/O error with the path it concerns (kept for the log, never shown to clients).
-pub(super) fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
+pub fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {
     move |source| StoreError::Io {
         path: path.to_owned(),
         source,

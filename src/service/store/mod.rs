@@ -1,12 +1,10 @@
-//! Persistence: job records in SQLite in the data directory (the embedded default) or in
-//! PostgreSQL shared by API replicas and workers ([`Postgres`], `--database-url`); artefacts as
-//! files in the data directory or as objects in an S3-compatible bucket ([`Artefacts`]).
+//! Persistence: job records behind the [`Records`] seam (each backend's in its folder under
+//! `service/backend/`); artefacts as files in the data directory or as objects in an
+//! S3-compatible bucket ([`Artefacts`]).
 //!
-//! Records go through rusqlite rather than sqlx: every access is a short synchronous statement
-//! made from a worker thread or a `spawn_blocking` task, so an async driver buys nothing, and
-//! rusqlite links the system libsqlite3 (no bundled C build, no proc macros) which keeps the
-//! build quick. The table holds one JSON record per job keyed by id, with the columns its queries
-//! read beside it (written from the record on every save); PostgreSQL keeps the same shape.
+//! Every record access is a short synchronous call made from a worker thread or a
+//! `spawn_blocking` task. The databases hold one JSON record per job keyed by id, with the
+//! columns their queries read beside it (written from the record on every save).
 //!
 //! Artefacts live under `jobs/<id>/` and are written whole or not at all (see [`Artefacts`]),
 //! so a crash never leaves a half-written file under a served name.
@@ -20,119 +18,59 @@ use sha2::{Digest, Sha256};
 
 mod artefacts;
 mod error;
-mod postgres;
-mod postgres_tls;
-mod sqlite;
+mod records;
+
+use std::sync::Arc;
 
 use super::model::{JobRecord, Status, is_job_id};
 use artefacts::Artefacts;
-use error::io_error;
-pub use error::{StoreError, retry_transient};
-pub use postgres::{Beat, Canceled, Change, Claim, Inserted, MAX_ATTEMPTS, Postgres};
-use sqlite::Sqlite;
+
+pub use error::{StoreError, io_error, retry_transient, with_sources};
+pub use records::{LocalRecords, Records, Recovered};
 
 pub struct Store {
     artefacts: Artefacts,
-    records: Records,
-}
-
-/// Where job records live.
-enum Records {
-    /// SQLite in the data directory (the embedded backend).
-    Sqlite(Sqlite),
-    /// PostgreSQL shared by API replicas and workers (the shared backend).
-    Postgres(Postgres),
-}
-
-/// What [`Store::recover`] found.
-pub struct Recovered {
-    /// The readable queued and running records, oldest first.
-    pub records: Vec<JobRecord>,
-    /// Ids of rows that could not be read, moved to the `quarantine` table.
-    pub quarantined: Vec<String>,
+    records: Arc<dyn Records>,
 }
 
 impl Store {
-    /// Opens (creating if needed) the data directory; records go to its SQLite database or,
-    /// given `database_url` (`postgres://…`), to that PostgreSQL database (migrated first);
-    /// artefacts go to the data directory or, given `object_store` (`s3://bucket/prefix`), to
-    /// that bucket.
+    /// Opens (creating if needed) the data directory; artefacts go there or, given
+    /// `object_store` (`s3://bucket/prefix`), to that bucket; records go to `records`.
     pub fn open(
         root: &Path,
         object_store: Option<&str>,
-        database_url: Option<&str>,
+        records: Arc<dyn Records>,
     ) -> Result<Self, StoreError> {
         fs::create_dir_all(root).map_err(io_error(root))?;
         let artefacts = Artefacts::open(root, object_store)?;
-        let records = match database_url {
-            Some(url) => Records::Postgres(Postgres::connect(url)?),
-            None => Records::Sqlite(Sqlite::open(root)?),
-        };
         Ok(Self { artefacts, records })
-    }
-
-    /// The PostgreSQL records, when records live there (the shared backend).
-    pub fn shared(&self) -> Option<&Postgres> {
-        match &self.records {
-            Records::Postgres(postgres) => Some(postgres),
-            Records::Sqlite { .. } => None,
-        }
-    }
-
-    /// The SQLite records, for what only the embedded backend does; [`StoreError::NotEmbedded`]
-    /// on the shared one.
-    fn sqlite(&self) -> Result<&Sqlite, StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => Ok(sqlite),
-            Records::Postgres(_) => Err(StoreError::NotEmbedded),
-        }
     }
 
     /// Writes a job's record, unless the job was deleted: a tombstone is final, so a worker
     /// finishing or a cancel racing a DELETE cannot bring the record back.
     ///
     /// On the shared backend only a job no worker holds is written, and its webhook deliveries
-    /// are kept ([`Postgres::save_idle`]).
+    /// are kept.
     pub fn save(&self, record: &JobRecord) -> Result<(), StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.save(record),
-            Records::Postgres(postgres) => postgres.save_idle(record),
-        }
+        self.records.save(record)
     }
 
     /// Writes a job's webhook deliveries: its whole record on the embedded backend, only that
     /// field on the shared one (where a worker may be writing the rest).
     pub fn save_webhook(&self, record: &JobRecord) -> Result<(), StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.save(record),
-            Records::Postgres(postgres) => postgres.save_webhook(record),
-        }
+        self.records.save_webhook(record)
     }
 
     /// Marks a job deleted for good (its row goes at the next start, when no one can still be
     /// writing it). The commit point of a DELETE: until it is written nothing else changes.
     pub fn tombstone(&self, id: &str) -> Result<(), StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.tombstone(id),
-            Records::Postgres(postgres) => postgres.tombstone(id),
-        }
-    }
-
-    /// At start: drops tombstones, moves unreadable rows to the `quarantine` table (logged;
-    /// the server starts without them) and returns the queued and running records, oldest
-    /// first. Ended records stay in the store, read when asked for ([`Store::get`]): start-up
-    /// reads the live jobs through an index, whatever the number of records.
-    pub fn recover(&self) -> Result<Recovered, StoreError> {
-        self.sqlite()?.recover()
+        self.records.tombstone(id)
     }
 
     /// The record of job `id`, if it has one. An unreadable row is moved to the quarantine
     /// (as at start) and answered [`StoreError::CorruptRecord`].
     pub fn get(&self, id: &str) -> Result<Option<JobRecord>, StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.get(id),
-            Records::Postgres(postgres) => postgres.get(id),
-        }
+        self.records.get(id)
     }
 
     /// The newest job of `owner` holding Idempotency-Key `key` created at or after
@@ -143,28 +81,19 @@ impl Store {
         key: &str,
         created_since: u64,
     ) -> Result<Option<JobRecord>, StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.idempotent(owner, key, created_since),
-            Records::Postgres(postgres) => postgres.idempotent(owner, key, created_since),
-        }
+        self.records.idempotent(owner, key, created_since)
     }
 
     /// Removes the Idempotency-Keys of jobs created before `created_before` (Unix ms) from
     /// their records; returns how many.
     pub fn drop_idempotency_keys(&self, created_before: u64) -> Result<usize, StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.drop_idempotency_keys(created_before),
-            Records::Postgres(postgres) => postgres.drop_idempotency_keys(created_before),
-        }
+        self.records.drop_idempotency_keys(created_before)
     }
 
     /// Up to `limit` ids of jobs whose results were due for removal at `now` (Unix ms) and are
     /// not removed yet.
     pub fn results_due(&self, now: u64, limit: usize) -> Result<Vec<String>, StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.results_due(now, limit),
-            Records::Postgres(postgres) => postgres.results_due(now, limit),
-        }
+        self.records.results_due(now, limit)
     }
 
     /// Deletes up to `limit` records of jobs that ended before `ended_before` (Unix ms),
@@ -176,27 +105,14 @@ impl Store {
         expired_before: u64,
         limit: usize,
     ) -> Result<Vec<String>, StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.expire_records(ended_before, expired_before, limit),
-            Records::Postgres(postgres) => {
-                postgres.expire_records(ended_before, expired_before, limit)
-            }
-        }
+        self.records
+            .expire_records(ended_before, expired_before, limit)
     }
 
     /// The owner of job `id` if its record was deleted by [`Store::expire_records`] (and its
     /// entry is still kept).
     pub fn expired_owner(&self, id: &str) -> Result<Option<Option<String>>, StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.expired_owner(id),
-            Records::Postgres(postgres) => postgres.expired_owner(id),
-        }
-    }
-
-    /// Embedded backend: the records whose webhook deliveries are not all made or given up
-    /// (to resume them after a start).
-    pub fn webhooks_pending(&self) -> Result<Vec<JobRecord>, StoreError> {
-        self.sqlite()?.webhooks_pending()
+        self.records.expired_owner(id)
     }
 
     /// Up to `limit` ids of `owner`'s jobs (with `status` if given) strictly older than
@@ -210,18 +126,12 @@ impl Store {
     ) -> Result<Vec<String>, StoreError> {
         // Ids are `job_<hex>`: every one sorts before "k".
         let before = before.unwrap_or("k");
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.list_ids(owner, status, before, limit),
-            Records::Postgres(postgres) => postgres.list_ids(owner, status, before, limit),
-        }
+        self.records.list_ids(owner, status, before, limit)
     }
 
     /// Whether a live or quarantined record exists for `id` (what the orphan sweep keeps).
     fn has_record(&self, id: &str) -> Result<bool, StoreError> {
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.has_record(id),
-            Records::Postgres(postgres) => postgres.has_record(id),
-        }
+        self.records.has_record(id)
     }
 
     /// Removes job directories that no record owns (an upload interrupted by a crash, a refused
@@ -312,15 +222,12 @@ impl Store {
     /// Checks that the artefact storage accepts writes and the database answers (for `/readyz`).
     pub fn check(&self) -> Result<(), StoreError> {
         self.artefacts.check()?;
-        match &self.records {
-            Records::Sqlite(sqlite) => sqlite.check(),
-            Records::Postgres(postgres) => postgres.check(),
-        }
+        self.records.check()
     }
 }
 
 /// A stored record, if it parses and is the record of the row it is in.
-pub(super) fn parse_record(id: &str, json: &str) -> Result<JobRecord, StoreError> {
+pub fn parse_record(id: &str, json: &str) -> Result<JobRecord, StoreError> {
     let corrupt = |reason: String| StoreError::CorruptRecord {
         id: id.to_owned(),
         reason,
