@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
 """covec's Python package against VTracer's (PyPI `vtracer`), both from Python, on the bench.
 
-    python3 benches/python/against_vtracer.py OUT_DIR --wheel covec-….whl [--venv DIR] [--runs N]
-        [--bench DIR] [--threads N]
+    python3 benches/python/against_vtracer.py OUT_DIR --wheel covec-….whl --bench BENCH
+        [--venv DIR] [--runs N] [--threads N]
 
-Each photo and emoji of the covec bench (default ../shared/covec-bench beside the checkout) goes
-in as its PNG file's bytes: covec.vectorize(…, paths=64) (`--threads`, default all cores), and
+Each photo and emoji of the covec bench (BENCH: the covec-bench folder, not part of this
+repository) goes in as its PNG file's bytes: covec.vectorize(…, paths=64) (`--threads`, default all cores), and
 vtracer.convert_raw_image_to_svg with VTracer's defaults, and with filter_speckle=16 as
 benches/quality/bench.sh runs VTracer. Time: the fastest of `--runs` calls (default 3) after a
 warm-up, each tracer run in turn on one image. Each SVG is rendered over white by resvg (0.49 in
@@ -38,7 +38,7 @@ def option(args, name, default):
 
 def main():
     args = sys.argv[1:]
-    if not args or args[0].startswith("-") or "--wheel" not in args:
+    if not args or args[0].startswith("-") or "--wheel" not in args or "--bench" not in args:
         sys.exit(__doc__)
     out = args[0]
     ensure_venv(venv_path(out, args), [*PACKAGES, os.path.abspath(option(args, "--wheel", ""))])
@@ -50,7 +50,7 @@ def main():
     runs = int(option(args, "--runs", "3"))
     threads = option(args, "--threads", None)
     threads = None if threads is None else int(threads)
-    bench = option(args, "--bench", os.path.join(HERE, "..", "..", "..", "shared", "covec-bench"))
+    bench = option(args, "--bench", "")
     sets = {
         "photos": sorted(glob.glob(f"{bench}/faces/*.png") + glob.glob(f"{bench}/scenes/*.png")),
         "emoji": sorted(glob.glob(f"{bench}/emoji/*.png")),
