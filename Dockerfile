@@ -27,13 +27,16 @@ ENV CARGO_PROFILE_RELEASE_DEBUG=false \
 # (what cargo-chef does, without a tool to install): the package's manifest over empty sources.
 # Layer caching works with every builder and with exported build caches (--cache-to), which
 # BuildKit's cache mounts do not reach. The manifest's [[bench]] needs its file to exist; it
-# is never built here. vendor/ holds a patched dependency (vendor/README.md).
+# is never built here, nor is the workspace's Python package, whose manifest cargo must read
+# (an empty library stands for its sources). vendor/ holds a patched dependency
+# (vendor/README.md).
 COPY Cargo.toml Cargo.lock ./
+COPY python/Cargo.toml python/Cargo.toml
 COPY vendor vendor
-RUN mkdir src benches \
+RUN mkdir src benches python/src \
  && echo 'fn main() {}' > src/main.rs \
  && cp src/main.rs benches/render.rs \
- && touch src/lib.rs \
+ && touch src/lib.rs python/src/lib.rs \
  && cargo build --release --locked --bin covec \
  && rm -rf src
 # What the binary is built from; .dockerignore keeps the rest of the tree out of the context.
