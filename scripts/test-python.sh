@@ -31,7 +31,12 @@ for line in sys.stdin:
     if m.get("executable") and m["target"]["name"] == "covec":
         print(m["executable"])')
 
-work=$(mktemp -d)
+# The wheel and its virtual environment in the target directory, on the disk that holds the build,
+# not in /tmp, which may be a small tmpfs.
+target_dir=$(cargo metadata --quiet --format-version 1 --no-deps \
+    | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+mkdir -p "$target_dir/tmp"
+work=$(mktemp -d -p "$target_dir/tmp" test-python.XXXXXX)
 trap 'rm -rf "$work"' EXIT
 "$cache/maturin/bin/maturin" build --quiet --manifest-path python/Cargo.toml --profile "$profile" \
     --features covec/default --out "$work/wheels"
@@ -40,7 +45,7 @@ echo "test-python: $(basename "$wheel"), $(du -k "$wheel" | cut -f1) KiB ($profi
 
 python3 -m venv "$work/venv"
 read -ra requirements <"$cache/wheels/done"
-"$work/venv/bin/pip" install -q --no-index --find-links "$cache/wheels" "${requirements[@]}" "$wheel"
+"$work/venv/bin/pip" install -q --no-cache-dir --no-index --find-links "$cache/wheels" "${requirements[@]}" "$wheel"
 
 # Run from the tests' folder, so that `import covec` finds the installed wheel, not python/covec.
 cd python/tests
