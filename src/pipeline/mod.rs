@@ -103,11 +103,17 @@ pub(crate) fn run_with(
                 let original = (inputs.image.width(), inputs.image.height());
                 let state = init::run(decomposition, params, original);
                 preview_init(&state, &stage);
+                let optimisation = Box::new(Optimisation::new(state, params, settings)?);
+                stage.draft(|| optimisation.draft());
                 stage.iteration(1, 1, None)?;
-                Work::Optimising(Box::new(Optimisation::new(state, params, settings)?))
+                Work::Optimising(optimisation)
             }
             (kind, Work::Optimising(mut optimisation)) => {
                 optimisation.run_stage(kind, &stage)?;
+                // The last stage's scene is the output itself.
+                if index + 1 < context.stages().len() {
+                    stage.draft(|| optimisation.draft());
+                }
                 Work::Optimising(optimisation)
             }
             (kind, _) => {

@@ -155,6 +155,17 @@ impl<'a> Optimisation<'a> {
         }
     }
 
+    /// The scene as the SVG model would draw it if the run ended now: before the split (photo
+    /// mode), the illumination of a copy split into shade and light; every value in range.
+    pub fn draft(&self) -> Scene {
+        let mut scene = self.scene.clone();
+        if self.mode == ResolvedMode::Photo && self.report.split.is_none() {
+            split_layers(&mut scene, &self.target, None);
+        }
+        polish::into_range(&mut scene);
+        scene
+    }
+
     /// How many times the coarse copy is halved (0: no coarse phase).
     fn halvings(&self) -> u32 {
         self.pyramid.len() as u32
@@ -344,7 +355,7 @@ impl<'a> Optimisation<'a> {
 
     fn split(&mut self, stage: &StageRun) -> Result<(), Error> {
         stage.iteration(0, 1, None)?;
-        let split = split_layers(&mut self.scene, &self.target, stage);
+        let split = split_layers(&mut self.scene, &self.target, Some(stage));
         stage.iteration(1, 1, Some(split.mse_after))?;
         self.report.split = Some(split);
         Ok(())

@@ -265,6 +265,15 @@ pub trait Observer: Sync {
     fn wants_previews(&self) -> bool {
         true
     }
+    /// A draft after `stage`: the whole layered scene as the run has it, in the SVG model's
+    /// layers and ranges (the final one comes in [`Output`]). One after the init stage and one
+    /// after each later stage but the last, so a front end has a result to show at once.
+    fn draft(&self, _stage: &str, _scene: &Scene) {}
+    /// Whether the observer takes drafts: when not, none is made (making one copies the scene
+    /// and, before the split, splits the copy).
+    fn wants_drafts(&self) -> bool {
+        false
+    }
 }
 
 /// An observer that ignores everything.

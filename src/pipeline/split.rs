@@ -20,8 +20,13 @@ pub struct SplitReport {
     pub mean_change: f32,
 }
 
-/// Splits the illumination layer in place (paper rule, no tolerance).
-pub(crate) fn split_layers(scene: &mut Scene, target: &Image, stage: &StageRun) -> SplitReport {
+/// Splits the illumination layer in place (paper rule, no tolerance); hands the result's
+/// previews to `previews`' stage, if any.
+pub(crate) fn split_layers(
+    scene: &mut Scene,
+    target: &Image,
+    previews: Option<&StageRun>,
+) -> SplitReport {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
     let (mut albedo, mut illumination, mut before) =
@@ -81,10 +86,12 @@ pub(crate) fn split_layers(scene: &mut Scene, target: &Image, stage: &StageRun) 
         .map(|(a, b)| (a - b).abs())
         .sum::<f32>()
         / after.data.len().max(1) as f32;
-    stage.preview("composite", &after);
-    stage.preview("albedo", &albedo);
-    stage.preview("shade", &shaded);
-    stage.preview("light", &light);
+    if let Some(stage) = previews {
+        stage.preview("composite", &after);
+        stage.preview("albedo", &albedo);
+        stage.preview("shade", &shaded);
+        stage.preview("light", &light);
+    }
     SplitReport {
         shade_paths: scene.shade.paths.len(),
         light_paths: scene.light.paths.len(),

@@ -250,6 +250,14 @@ impl StageRun<'_> {
         self.run.observer.wants_previews()
     }
 
+    /// Hands the observer a draft of the run after this stage, made by `make` only if the
+    /// observer takes drafts (see [`Observer::draft`]).
+    pub fn draft(&self, make: impl FnOnce() -> Scene) {
+        if self.run.observer.wants_drafts() {
+            self.run.observer.draft(self.spec.name, &make());
+        }
+    }
+
     /// Hands a preview named `NN-what` to the observer (inputs, masks).
     pub fn preview_as(&self, what: &str, image: &Image) {
         self.run

@@ -20,18 +20,23 @@ pub fn endpoints() -> Vec<Endpoint> {
     vec![endpoint(Method::GET, "/v1/jobs/{id}/events", events)]
 }
 
-/// Shortest gap between two progress events; the latest state always gets through.
+/// Shortest gap between two progress events; the latest state always gets through, and a new
+/// draft at once.
 const EVENT_INTERVAL: Duration = Duration::from_millis(100);
 
-/// Server-Sent Events: `progress` events while the job is queued or running, then one
-/// `completed` event with the final job, then the stream ends. `X-Accel-Buffering: no` asks a
+/// Server-Sent Events: `progress` events while the job is queued or running (`draft` instead
+/// when the job has a draft newer than the last event's, sent without waiting out the
+/// interval), then one `completed` event with the final job, then the stream ends. `X-Accel-Buffering: no` asks a
 /// proxy in front (nginx, ingress-nginx) to pass events as they come rather than buffer the
 /// stream until the job ends, and `Cache-Control: no-cache` keeps caches from storing it.
 #[utoipa::path(get, path = "/v1/jobs/{id}/events", tag = "jobs", operation_id = "jobEvents",
     summary = "Server-Sent Events of the job's progress",
     description = "`event: progress` with the job (as in `GET /v1/jobs/{id}`) whenever it \
         changes (at most every 100 ms), then one `event: completed` with the final job, then the \
-        stream ends. Every event carries the whole job, and its `id:` is `{sequence}.{digest}`. \
+        stream ends. When the job's `draft` is new (not in the stream's previous event), the \
+        event is `event: draft` instead of `progress`, sent at once: fetch `draft.url` to show \
+        the result so far. Every event carries the whole job, and its `id:` is \
+        `{sequence}.{digest}`. \
         Reconnecting with `Last-Event-ID` (as EventSource does) misses nothing and repeats \
         nothing: the first event is the current state unless the client has it already (then the \
         next change, or, for an ended job, an empty stream), numbered after the given id. A \
@@ -61,6 +66,7 @@ async fn events(
         sequence: resumed.map_or(0, |id| id.sequence + 1),
         waiting: false,
         seen: resumed.map(|id| id.digest),
+        draft: None,
         done: false,
     };
     let stream = futures_util::stream::unfold(
@@ -71,10 +77,23 @@ async fn events(
             }
             loop {
                 if cursor.waiting {
-                    tokio::time::sleep(EVENT_INTERVAL).await;
-                    tokio::select! {
-                        changed = receiver.changed() => changed.ok()?,
+                    // A clone watches for a new draft without marking the other changes seen.
+                    let mut drafts = receiver.clone();
+                    let sent = cursor.draft.clone();
+                    let new_draft =
+                        async move { drafts.wait_for(|record| record.draft != sent).await.is_ok() };
+                    let early = tokio::select! {
+                        () = tokio::time::sleep(EVENT_INTERVAL) => false,
+                        // Closed (the job's entry let go after its last change): that last
+                        // change still comes through `receiver` below.
+                        true = new_draft => true,
                         _ = shutdown.wait_for(|stopping| *stopping) => return None,
+                    };
+                    if !early {
+                        tokio::select! {
+                            changed = receiver.changed() => changed.ok()?,
+                            _ = shutdown.wait_for(|stopping| *stopping) => return None,
+                        }
                     }
                 }
                 let record = receiver.borrow_and_update().clone();
@@ -94,20 +113,26 @@ async fn events(
                         return None;
                     }
                     cursor.waiting = true;
+                    cursor.draft = record.draft;
                     continue;
                 }
                 let id = EventId {
                     sequence: cursor.sequence,
                     digest,
                 };
-                let event = Event::default()
-                    .id(id.to_string())
-                    .event(if terminal { "completed" } else { "progress" })
-                    .data(data);
+                let kind = if terminal {
+                    "completed"
+                } else if record.draft.is_some() && record.draft != cursor.draft {
+                    "draft"
+                } else {
+                    "progress"
+                };
+                let event = Event::default().id(id.to_string()).event(kind).data(data);
                 let next = Cursor {
                     sequence: cursor.sequence + 1,
                     waiting: true,
                     seen: None,
+                    draft: record.draft,
                     done: terminal,
                 };
                 return Some((
@@ -129,13 +154,14 @@ async fn events(
 const LAST_EVENT_ID: &str = "last-event-id";
 
 /// Where an event stream stands.
-#[derive(Clone, Copy)]
 struct Cursor {
     sequence: u64,
     /// Wait for a change before the next event (not before the first).
     waiting: bool,
     /// The digest of the state a resuming client has: not sent again.
     seen: Option<u64>,
+    /// The draft (its stage) in the last event sent.
+    draft: Option<String>,
     done: bool,
 }
 

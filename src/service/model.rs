@@ -246,6 +246,9 @@ pub struct JobRecord {
     pub progress: Option<ProgressView>,
     /// Preview names (`<name>.png` under `previews/`), in the order the stages produced them.
     pub previews: Vec<String>,
+    /// The stage after which the stored draft was made, once there is one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub draft: Option<String>,
     pub cancel_reason: Option<CancelReason>,
     /// A stop was asked for (by a user, the time limit or shutdown).
     #[serde(default)]
@@ -269,6 +272,10 @@ pub struct JobRecord {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub input_name: Option<String>,
 }
+
+/// A job's newest draft (the layered SVG after its latest stage but the last), replaced as stages
+/// end.
+pub const DRAFT_FILE: &str = "draft.svg";
 
 /// The longest input file name kept, in characters.
 const INPUT_NAME_CHARS: usize = 255;
@@ -313,6 +320,7 @@ impl JobRecord {
             mode_reason: None,
             progress: None,
             previews: Vec::new(),
+            draft: None,
             cancel_reason: None,
             cancel_requested: false,
             error: None,
@@ -345,6 +353,7 @@ impl JobRecord {
         self.progress = None;
         self.cancel_requested = false;
         self.previews.clear();
+        self.draft = None;
     }
 
     /// Marks the job ended (`status` terminal): when, until when its results are kept, why.

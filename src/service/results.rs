@@ -1,7 +1,8 @@
 //! A job's results: the layered or flattened SVG, the per-layer SVGs, the JSON scene, a PNG of
-//! any width, the PDF and the stage previews.
+//! any width, the PDF, the stage previews and the draft.
 //!
-//! Previews are served while the job runs; the other results once it has succeeded.
+//! Previews and the draft are served while the job runs; the other results once it has
+//! succeeded.
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, State};
@@ -17,7 +18,7 @@ use super::derived::{self, Derived};
 use super::download::{Download, etag_of, filename};
 use super::error::{ApiError, FileProblems, JobProblems, off_async};
 use super::jobs::find;
-use super::model::{JobId, JobRecord, Problem, Status};
+use super::model::{DRAFT_FILE, JobId, JobRecord, Problem, Status};
 use super::queue::Queue;
 use super::state::{AppState, Endpoint, endpoint};
 use crate::output::FileKind;
@@ -32,6 +33,7 @@ pub fn endpoints() -> Vec<Endpoint> {
         endpoint(Method::GET, "/v1/jobs/{id}/pdf", pdf),
         endpoint(Method::GET, "/v1/jobs/{id}/previews", previews),
         endpoint(Method::GET, "/v1/jobs/{id}/previews/{file}", preview),
+        endpoint(Method::GET, "/v1/jobs/{id}/draft.svg", draft),
     ]
 }
 
@@ -482,6 +484,42 @@ async fn preview(
         name: format!("previews/{file}"),
         media_type: "image/png",
         filename: filename(&record, &format!("-{file}")),
+    };
+    artefact(&state, &headers, &record, stored).await
+}
+
+#[utoipa::path(get, path = "/v1/jobs/{id}/draft.svg", tag = "results", operation_id = "getDraft",
+    summary = "The job's result so far: a complete layered SVG, improving as stages end",
+    description = "Made as soon as the initialisation ends (well before the job does) and \
+        replaced after each later stage but the last; the job's `draft` names the stage, and the \
+        event stream sends `event: draft` when a new one is stored. After the job ends the last \
+        draft stays until the results go. 404 `result-not-found` before the first draft.",
+    params(("id" = JobId, Path)),
+    responses(
+        (status = 200, description = "The draft: a layered SVG like the result's.", body = Binary,
+            content_type = "image/svg+xml"),
+        JobProblems,
+        (status = 403, response = Problem),
+    ),
+)]
+async fn draft(
+    State(state): State<AppState>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let entry = find(&state, &owner, &id).await?;
+    let record = entry.snapshot();
+    if record.data_removed {
+        return Err(ApiError::DataRemoved(id));
+    }
+    if record.draft.is_none() {
+        return Err(ApiError::ResultNotFound(DRAFT_FILE.to_owned()));
+    }
+    let stored = Stored {
+        name: DRAFT_FILE.to_owned(),
+        media_type: "image/svg+xml",
+        filename: filename(&record, "-draft.svg"),
     };
     artefact(&state, &headers, &record, stored).await
 }

@@ -13,11 +13,13 @@ use tracing::{info, warn};
 
 use super::inputs::{EncodedInputs, InputError, InputLimits};
 use super::job::{JobEntry, JobFailure};
-use super::model::{CancelReason, JobRecord, ProgressView, Status};
+use super::model::{CancelReason, DRAFT_FILE, JobRecord, ProgressView, Status};
 use super::store::{Store, StoreError, digest, retry_transient};
 use super::telemetry::Metrics;
 use crate::pipeline::{self, Observer, Progress};
 use crate::render::Image;
+use crate::scene::Scene;
+use crate::svg::{self, SvgOptions};
 
 /// What running a job needs besides the job.
 pub struct Runner {
@@ -215,7 +217,7 @@ pub(super) fn lower_thread_priority() {
 #[cfg(target_os = "linux")]
 const PIPELINE_NICE: libc::c_int = 10;
 
-/// Turns pipeline callbacks into job progress and stored previews.
+/// Turns pipeline callbacks into job progress, stored previews and the stored draft.
 struct JobObserver<'a> {
     store: &'a Store,
     entry: &'a JobEntry,
@@ -250,5 +252,23 @@ impl Observer for JobObserver<'_> {
             }),
             Err(error) => warn!(name, "storing a preview: {error}"),
         }
+    }
+
+    fn draft(&self, stage: &str, scene: &Scene) {
+        let svg = svg::to_svg(scene, &SvgOptions::default());
+        match self
+            .store
+            .write_artefact(&self.entry.id, DRAFT_FILE, svg.as_bytes())
+        {
+            Ok(()) => self
+                .entry
+                .record
+                .send_modify(|record| record.draft = Some(stage.to_owned())),
+            Err(error) => warn!(stage, "storing a draft: {error}"),
+        }
+    }
+
+    fn wants_drafts(&self) -> bool {
+        true
     }
 }

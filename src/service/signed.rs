@@ -107,14 +107,15 @@ pub fn query_token(query: Option<&str>) -> Option<&str> {
 }
 
 /// The job whose file `path` names, for the routes a token opens: `/v1/jobs/{id}/` followed by
-/// `svg`, `pdf`, `png`, `scene.json`, `layers/…`, `previews/…` (a file, not the list) or an
-/// edit's `svg`, `pdf`, `png`, `scene.json` or `preview.png`. `None` for every other path.
+/// `svg`, `pdf`, `png`, `scene.json`, `draft.svg`, `layers/…`, `previews/…` (a file, not the
+/// list) or an edit's `svg`, `pdf`, `png`, `scene.json` or `preview.png`. `None` for every other
+/// path.
 pub fn file_route_job(path: &str) -> Option<&str> {
     let rest = path.strip_prefix("/v1/jobs/")?;
     let (job, file) = rest.split_once('/')?;
     let parts: Vec<&str> = file.split('/').collect();
     let opened = match parts.as_slice() {
-        ["svg" | "pdf" | "png" | "scene.json"] => true,
+        ["svg" | "pdf" | "png" | "scene.json" | "draft.svg"] => true,
         ["layers" | "previews", name] => !name.is_empty(),
         [
             "edits",

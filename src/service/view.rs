@@ -6,8 +6,8 @@ use utoipa::ToSchema;
 use utoipa::openapi::{ObjectBuilder, Ref, RefOr, Schema, Type};
 
 use super::model::{
-    CancelReason, DeliveryStatus, JobId, JobRecord, Placement, Priority, Problem, ProgressView,
-    Status, Webhook, WebhookEvent, now_ms, rfc3339,
+    CancelReason, DRAFT_FILE, DeliveryStatus, JobId, JobRecord, Placement, Priority, Problem,
+    ProgressView, Status, Webhook, WebhookEvent, now_ms, rfc3339,
 };
 use crate::pipeline::{Mode, Params};
 
@@ -59,6 +59,10 @@ pub struct JobView {
     /// The results were removed after the retention period.
     pub data_removed: bool,
     pub previews: Vec<String>,
+    /// The newest draft, once the first stages have made one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = DraftView, required = false)]
+    pub draft: Option<DraftView>,
     /// Present when the job was submitted with a webhook.
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = WebhookView)]
@@ -81,6 +85,18 @@ pub struct JobView {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = SignedUrls, required = false)]
     pub signed: Option<SignedUrls>,
+}
+
+/// A running job's result so far: the whole layered SVG (albedo, shade, light) as the run has
+/// it after `stage`, made as soon as the initialisation ends and again as later stages end (not
+/// after the last: the result itself follows). Coarse at first, improving with each stage.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct DraftView {
+    /// The stage after which it was made (`init`, `structure`, …).
+    pub stage: String,
+    /// The draft's SVG; each new draft replaces it at this URL (`ETag` changes, `no-cache`
+    /// while the job runs).
+    pub url: String,
 }
 
 /// Signed URLs of a job's files: each opens that file, and nothing else, without a key until
@@ -124,7 +140,7 @@ impl utoipa::PartialSchema for JobEvent {
                 "event",
                 ObjectBuilder::new()
                     .schema_type(Type::String)
-                    .enum_values(Some(["progress", "completed"])),
+                    .enum_values(Some(["progress", "draft", "completed"])),
             )
             .property(
                 "data",
@@ -339,6 +355,13 @@ impl JobView {
             error: record.error.clone(),
             data_removed: record.data_removed,
             previews: record.previews.clone(),
+            draft: (!record.data_removed)
+                .then_some(record.draft.as_ref())
+                .flatten()
+                .map(|stage| DraftView {
+                    stage: stage.clone(),
+                    url: format!("{base}/{DRAFT_FILE}"),
+                }),
             webhook: record.webhook.as_ref().map(WebhookView::from),
             attempts: record.attempts,
             input_name: record.input_name.clone(),

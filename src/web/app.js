@@ -61,6 +61,9 @@ const ui = {
   cancel: $("cancel"),
   jobError: $("job-error"),
   previews: $("previews"),
+  draft: $("draft"),
+  draftImage: $("draft-image"),
+  draftCaption: $("draft-caption"),
   result: $("result"),
   resultNote: $("result-note"),
   inputImage: $("input-image"),
@@ -274,6 +277,8 @@ function newItem(name) {
     events: null,
     pollTimer: null,
     shownPreviews: new Set(),
+    /** The stage of the draft shown (or being fetched). */
+    shownDraft: null,
     /** Versions of the result, oldest first: the job's SVG, then one per edit. Undo pops. */
     versions: [],
     /** Whether the person has picked a region yet (by click or from the list). */
@@ -385,14 +390,17 @@ function select(item) {
   ui.selectedHeading.textContent = item.name;
   updateAddress();
   item.shownPreviews = new Set();
+  item.shownDraft = null;
   showJob(item);
   showPreviews(item, item.job.previews ?? []);
+  showDraft(item);
   if (TERMINAL.has(item.job.status)) finish(item);
 }
 
 function resetJobView() {
   ui.result.hidden = true;
   ui.previews.replaceChildren();
+  hideDraft();
   ui.bar.value = 0;
   ui.stageName.textContent = "Queued";
   ui.stageCount.textContent = "";
@@ -586,9 +594,10 @@ function follow(item) {
   if (TERMINAL.has(item.job.status)) return;
   const controller = new AbortController();
   item.events = controller;
-  // The service sends `progress` events (the job) while it runs, then one `completed`.
+  // The service sends `progress` events (the job) while it runs, `draft` when it has a new
+  // draft, then one `completed`.
   const onEvent = (type, text) => {
-    if (type !== "progress" && type !== "completed") return;
+    if (type !== "progress" && type !== "draft" && type !== "completed") return;
     let data;
     try {
       data = JSON.parse(text);
@@ -657,6 +666,7 @@ function handleUpdate(item, data) {
   if (item === session) {
     showJob(item);
     showPreviews(item, job.previews ?? []);
+    showDraft(item);
   }
   if (TERMINAL.has(job.status)) {
     stopFollowing(item);
@@ -740,12 +750,47 @@ function showPreviews(item, names) {
   }
 }
 
+/**
+ * The shown job's draft while it runs: the vector result so far (the service's layered SVG after
+ * its latest stage), replaced as stages end; the result takes its place.
+ */
+function showDraft(item) {
+  const draft = item.job.draft;
+  if (item !== session || TERMINAL.has(item.job.status) || !draft?.url || draft.stage === item.shownDraft) return;
+  item.shownDraft = draft.stage;
+  blobUrl(draft.url)
+    .then((url) => {
+      // A newer draft, another job or the end may have come meanwhile.
+      if (item !== session || item.shownDraft !== draft.stage || TERMINAL.has(item.job.status)) {
+        URL.revokeObjectURL(url);
+        return;
+      }
+      if (ui.draftImage.src.startsWith("blob:")) URL.revokeObjectURL(ui.draftImage.src);
+      ui.draftImage.src = url;
+      ui.draftCaption.textContent = `The result so far, after stage ${draft.stage}: it improves as the stages end.`;
+      ui.draft.dataset.stage = draft.stage;
+      ui.draft.hidden = false;
+    })
+    // A draft is a courtesy: the progress and the result go on without it, and the next
+    // stage's draft is tried again.
+    .catch(() => {});
+}
+
+function hideDraft() {
+  ui.draft.hidden = true;
+  delete ui.draft.dataset.stage;
+  if (ui.draftImage.src.startsWith("blob:")) URL.revokeObjectURL(ui.draftImage.src);
+  ui.draftImage.removeAttribute("src");
+  ui.draftCaption.textContent = "";
+}
+
 /** A job that ended: its row says so; if it is the one shown, so does the view (and its result). */
 async function finish(item) {
   const { job } = item;
   updateRow(item);
   if (job.status === "succeeded") item.row.show.disabled = item === session;
   if (item !== session) return;
+  hideDraft();
   setState(job.status);
   showJob(item);
   if (job.status === "failed") {

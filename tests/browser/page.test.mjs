@@ -3,7 +3,7 @@
 // free loopback port with a fresh data directory (or uses --url), uploads
 // tests/fixtures/web_astronaut.png with a small budget, and checks what a person would see: the
 // form bounded by the server's limits, refusals next to the file they concern, progress and
-// stage previews, the result, that each layer toggle changes the pixels, a recolour (by colour
+// stage previews, a running job's draft, the result, that each layer toggle changes the pixels, a recolour (by colour
 // and by a reference image) through the edits API and its undo, the downloads (byte for byte
 // the API's files, named after the input), a PNG of a chosen width, the job resumed from the
 // page's address after a reload (finished and mid-job), several files at once, the sample
@@ -907,7 +907,7 @@ async function run(context, base) {
     await page.setViewportSize({ width: 1280, height: 900 });
   });
 
-  await step("a longer job shows live progress and previews, survives a reload, and can be canceled", async () => {
+  await step("a longer job shows live progress, previews and its draft, survives a reload, and can be canceled", async () => {
     // Long enough to be watched (and canceled) while it runs, even on an idle fast machine.
     await fillForm();
     await page.fill("#it-structure", String(LONG_JOB_STRUCTURE_ITERATIONS));
@@ -928,12 +928,25 @@ async function run(context, base) {
       null,
       { timeout: JOB_TIMEOUT_MS },
     );
+    // The draft: the vector result so far, drawn while the job still runs.
+    await page.waitForFunction(
+      () =>
+        document.body.dataset.state === "running" &&
+        !document.getElementById("draft").hidden &&
+        document.getElementById("draft").dataset.stage &&
+        document.getElementById("draft-image").naturalWidth > 0,
+      null,
+      { timeout: JOB_TIMEOUT_MS },
+    );
     facts.live = await page.evaluate(() => ({
       stage: document.getElementById("stage-name").textContent,
       bar: +document.getElementById("bar").value.toFixed(3),
       detail: document.getElementById("progress-detail").textContent,
       previews: document.querySelectorAll("#previews img").length,
+      draft: document.getElementById("draft").dataset.stage,
+      running: document.body.dataset.state === "running",
     }));
+    check(facts.live.running, "the job ended before its draft was checked");
     await screenshot("progress-live");
     // Reloaded mid-job, the page follows the same job from its address.
     const running = await page.evaluate(() => new URLSearchParams(location.hash.slice(1)).get("show"));

@@ -142,3 +142,89 @@ fn auto_mode_tells_flat_artwork_from_photos() {
         ResolvedMode::Photo
     );
 }
+
+/// Keeps every draft a run hands out, with the stage it came after.
+#[derive(Default)]
+struct Drafts(std::sync::Mutex<Vec<(String, covec::scene::Scene)>>);
+
+impl pipeline::Observer for Drafts {
+    fn progress(&self, _: &pipeline::Progress) {}
+    fn preview(&self, _: &str, _: &covec::render::Image) {}
+    fn draft(&self, stage: &str, scene: &covec::scene::Scene) {
+        self.0
+            .lock()
+            .unwrap()
+            .push((stage.to_owned(), scene.clone()));
+    }
+    fn wants_drafts(&self) -> bool {
+        true
+    }
+}
+
+#[test]
+fn drafts_come_after_init_and_each_stage_but_the_last_and_leave_the_result_alone() {
+    let image = DynamicImage::ImageRgb8(synthetic_photo(64, 48));
+    let inputs = Inputs {
+        image,
+        albedo: None,
+        masks: Masks::None,
+    };
+    let params = Params {
+        paths: 16,
+        mode: Mode::Photo,
+        iterations: Iterations {
+            structure: 4,
+            reconstruction: 4,
+            refine_rounds: 1,
+            refine: 4,
+            polish: 4,
+        },
+        ..Params::default()
+    };
+    let cancel = AtomicBool::new(false);
+    let drafts = Drafts::default();
+    let with = pipeline::run(&inputs, &params, &drafts, &cancel).unwrap();
+    let without = pipeline::run(&inputs, &params, &Quiet, &cancel).unwrap();
+    assert_eq!(
+        serde_json::to_vec(&with.scene).unwrap(),
+        serde_json::to_vec(&without.scene).unwrap(),
+        "drafts changed the result"
+    );
+    let drafts = drafts.0.into_inner().unwrap();
+    let stages: Vec<&str> = drafts.iter().map(|(stage, _)| stage.as_str()).collect();
+    assert_eq!(
+        stages,
+        ["init", "structure", "reconstruct", "refine", "split"]
+    );
+    for (stage, scene) in &drafts {
+        // In the SVG model: shade darkens only, every value in range, the picture's size.
+        assert_eq!(
+            (scene.original_width, scene.original_height),
+            (with.scene.original_width, with.scene.original_height)
+        );
+        assert!(!scene.albedo.paths.is_empty(), "{stage}: no albedo");
+        for kind in covec::scene::LayerKind::ALL {
+            for path in &scene.layer(kind).paths {
+                assert!(
+                    path.color.iter().all(|c| (0.0..=1.0).contains(c))
+                        && (0.0..=1.0).contains(&path.opacity),
+                    "{stage}: {kind:?} path out of range"
+                );
+            }
+        }
+        assert!(scene.path_count() <= 16, "{stage}: over the budget");
+    }
+    // The drafts improve on the whole: the last is nearer the target than the first.
+    let target = covec::imageio::to_rgb_image(&inputs.image);
+    let error = |scene: &covec::scene::Scene| {
+        let picture = covec::render::composite::composite(scene);
+        let squares = picture
+            .data
+            .iter()
+            .zip(&target.data)
+            .map(|(a, b)| (a - b) * (a - b));
+        squares.sum::<f32>() / target.data.len() as f32
+    };
+    let (first, last) = (error(&drafts[0].1), error(&drafts[drafts.len() - 1].1));
+    assert!(last < first, "first draft {first}, last {last}");
+}

@@ -220,7 +220,7 @@ async fn events_stream_progress_and_end_with_the_final_status() {
     assert!(
         events[..events.len() - 1]
             .iter()
-            .all(|(name, _)| name == "progress"),
+            .all(|(name, _)| name == "progress" || name == "draft"),
         "{events:?}"
     );
     // A finished job's stream is just its final event.
@@ -651,6 +651,70 @@ async fn a_stream_dropped_while_the_job_runs_resumes_without_repeats_or_gaps() {
     let final_state = server.get(&format!("/v1/jobs/{id}")).await.json();
     assert_eq!(final_state["status"], "canceled");
     assert_eq!(all.last().unwrap().data, final_state);
+}
+
+#[tokio::test]
+async fn a_running_job_has_a_layered_draft_and_its_stream_says_so() {
+    let dir = DataDir::new("draft");
+    let mut args = vec!["--workers", "1"];
+    args.extend_from_slice(BIG_BUDGET);
+    let server = Server::start(&dir.0, &args);
+    let id = submit_long(&server).await;
+    let queued = submit_quick(&server).await;
+    // Queued behind the long job, the quick one has no draft yet.
+    let none = server.get(&format!("/v1/jobs/{queued}/draft.svg")).await;
+    assert_eq!(none.status, StatusCode::NOT_FOUND, "{}", none.text());
+    assert_eq!(problem(&none)["code"], "result-not-found");
+    assert!(server.get(&format!("/v1/jobs/{queued}")).await.json()["draft"].is_null());
+
+    // The long job's first draft comes after its init stage, long before its end.
+    let path = format!("/v1/jobs/{id}/events");
+    let events = read_stream(&server, &path, None, |events| {
+        events.iter().any(|event| event.name == "draft")
+    })
+    .await;
+    let first = events.iter().find(|event| event.name == "draft").unwrap();
+    assert_eq!(first.data["status"], "running", "{first:?}");
+    assert_eq!(first.data["draft"]["stage"], "init", "{first:?}");
+    let url = format!("/v1/jobs/{id}/draft.svg");
+    assert_eq!(first.data["draft"]["url"], url.as_str());
+    assert!(
+        events
+            .iter()
+            .take_while(|event| event.name != "draft")
+            .all(|event| event.data["draft"].is_null()),
+        "a draft came in a progress event: {events:?}"
+    );
+    let svg = server.get(&url).await;
+    assert_eq!(svg.status, StatusCode::OK, "{}", svg.text());
+    assert_eq!(svg.header("content-type"), Some("image/svg+xml"));
+    assert_eq!(svg.header("cache-control"), Some("private, no-cache"));
+    let text = svg.text();
+    for layer in ["albedo", "shade", "light"] {
+        assert!(
+            text.contains(&format!("<g id=\"{layer}\"")),
+            "no {layer} layer: {text}"
+        );
+    }
+    assert!(text.contains("mix-blend-mode:multiply"), "{text}");
+    assert!(text.matches("<path ").count() > 1, "{text}");
+    let canceled = server.cancel(&id).await;
+    assert!(canceled.status.is_success(), "{}", canceled.text());
+
+    // The quick job then runs to its end: its last draft is the one before the last stage,
+    // and stays with the results.
+    let job = server.wait_for(&queued, PATIENCE, terminal).await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let stage = job["draft"]["stage"].as_str().expect("a draft");
+    let last_but_one = if job["mode"] == "photo" {
+        "split"
+    } else {
+        "refine"
+    };
+    assert_eq!(stage, last_but_one, "{job}");
+    let kept = server.get(&format!("/v1/jobs/{queued}/draft.svg")).await;
+    assert_eq!(kept.status, StatusCode::OK, "{}", kept.text());
+    assert!(kept.text().starts_with("<svg") || kept.text().starts_with("<?xml"));
 }
 
 #[tokio::test]

@@ -35,7 +35,7 @@ use crate::edit::ReferenceParams;
     paths(
         jobs::create, jobs::list, jobs::get, jobs::delete, jobs::cancel, events::events,
         results::svg, results::layer, results::scene, results::png, results::pdf,
-        results::previews, results::preview,
+        results::previews, results::preview, results::draft,
         edits::create, edits::get, edits::edit_svg, edits::edit_scene, edits::edit_preview,
         edits::edit_pdf, edits::edit_png,
         ops::healthz, ops::readyz, ops::metrics, limits::limits,
@@ -267,7 +267,7 @@ fn downloads(document: &mut Document) {
             "Cache-Control",
             "`private, max-age=<seconds until the results are removed>, immutable` once the \
              job has ended (results never change while they exist); `private, no-cache` for \
-             the previews of a running job.",
+             the previews and the draft of a running job.",
         ),
         (
             "Content-Disposition",
@@ -544,7 +544,9 @@ const SUMMARY: &str =
 const DESCRIPTION: &str = "\
 Submit an image as a job (`POST /v1/jobs`), follow it by polling `GET /v1/jobs/{id}` or with
 Server-Sent Events (`GET /v1/jobs/{id}/events`), then fetch the layered SVG, the per-layer
-SVGs, the JSON scene, a PNG of any width and the stage previews.
+SVGs, the JSON scene, a PNG of any width and the stage previews. While it runs, its draft
+(`GET /v1/jobs/{id}/draft.svg`, from the end of the initialisation on) is a complete layered
+SVG to show at once, improving as stages end.
 
 Every error is an RFC 9457 problem (`application/problem+json`) with a stable `code`:
 `unauthorized`, `token-invalid` and `token-expired` (403: a signed URL's token that is not

@@ -23,6 +23,7 @@ use object_store::prefix::PrefixStore;
 use object_store::{ObjectStore, ObjectStoreExt, PutPayload, RetryConfig};
 
 use super::error::{StoreError, io_error};
+use crate::service::model::DRAFT_FILE;
 
 /// The folder of the data directory (or the bucket prefix) that holds one folder per job.
 const JOBS: &str = "jobs";
@@ -30,7 +31,7 @@ const JOBS: &str = "jobs";
 /// What a run produces (removed for a re-run, which keeps the inputs): these folders of a
 /// job (`derived`: the files drawn from its scene), and these files.
 const OUTPUT_FOLDERS: [&str; 3] = ["previews", "layers", "derived"];
-const OUTPUT_FILES: [&str; 2] = ["scene.json", "result.svg"];
+const OUTPUT_FILES: [&str; 3] = ["scene.json", "result.svg", DRAFT_FILE];
 
 /// Written by the readiness check to prove the storage takes writes.
 const READY_CHECK: &str = ".ready-check";
