@@ -20,9 +20,12 @@ pub fn endpoints() -> Vec<Endpoint> {
     vec![endpoint(Method::GET, "/v1/jobs/{id}/events", events)]
 }
 
-/// Shortest gap between two progress events; the latest state always gets through, and a new
-/// draft at once.
+/// Shortest gap between two progress events; the latest state always gets through.
 const EVENT_INTERVAL: Duration = Duration::from_millis(100);
+
+/// How often a stream looks for a new draft within [`EVENT_INTERVAL`]: a draft goes out at most
+/// this late, and a stream wakes at most 100 times a second, however fast the job reports.
+const DRAFT_LOOK: Duration = Duration::from_millis(10);
 
 /// Server-Sent Events: `progress` events while the job is queued or running (`draft` instead
 /// when the job has a draft newer than the last event's, sent without waiting out the
@@ -77,19 +80,16 @@ async fn events(
             }
             loop {
                 if cursor.waiting {
-                    // A clone watches for a new draft without marking the other changes seen.
-                    let mut drafts = receiver.clone();
-                    let sent = cursor.draft.clone();
-                    let new_draft =
-                        async move { drafts.wait_for(|record| record.draft != sent).await.is_ok() };
-                    let early = tokio::select! {
-                        () = tokio::time::sleep(EVENT_INTERVAL) => false,
-                        // Closed (the job's entry let go after its last change): that last
-                        // change still comes through `receiver` below.
-                        true = new_draft => true,
-                        _ = shutdown.wait_for(|stopping| *stopping) => return None,
-                    };
-                    if !early {
+                    // The interval, cut short by a new draft: looked for every DRAFT_LOOK
+                    // rather than woken by every change, which comes at each iteration.
+                    let interval_ends = tokio::time::Instant::now() + EVENT_INTERVAL;
+                    let mut new_draft = false;
+                    while !new_draft && tokio::time::Instant::now() < interval_ends {
+                        let now = tokio::time::Instant::now();
+                        tokio::time::sleep_until(interval_ends.min(now + DRAFT_LOOK)).await;
+                        new_draft = receiver.borrow().draft != cursor.draft;
+                    }
+                    if !new_draft {
                         tokio::select! {
                             changed = receiver.changed() => changed.ok()?,
                             _ = shutdown.wait_for(|stopping| *stopping) => return None,
