@@ -372,7 +372,16 @@ def test_an_exception_in_progress_stops_the_run():
         covec.vectorize(PHOTO, progress=progress, **QUICK)
 
 
-def test_ctrl_c_stops_a_run_in_process():
+@pytest.fixture
+def ctrl_c():
+    """Python's own Ctrl-C handler for the test, whatever the runner was started with (a shell
+    starts background jobs with SIGINT ignored, and Python then raises nothing on Ctrl-C)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_stops_a_run_in_process(ctrl_c):
     import _thread
 
     started = []
@@ -390,7 +399,9 @@ def test_ctrl_c_stops_a_run_in_process():
 def test_ctrl_c_stops_a_run_in_a_process():
     """A real SIGINT to a Python process in the middle of a long run (256 paths)."""
     script = (
-        "import sys, covec\n"
+        "import signal, sys, covec\n"
+        # As a terminal's foreground process has it, even if this test's runner ignores SIGINT.
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "def progress(stage, fraction):\n"
         "    if stage == 'structure': print('started', flush=True)\n"
         f"covec.vectorize({str(PHOTO)!r}, paths=256, max_size=96, progress=progress)\n"
