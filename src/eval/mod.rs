@@ -95,6 +95,7 @@ const RANDOM_STAGES: &[StageSpec] = &[StageSpec {
     name: "random",
     layers: &[crate::scene::LayerKind::Albedo],
     iterations: |it| it.total(),
+    draft: false,
 }];
 
 /// The `random` baseline: an opaque full-canvas path of the mean colour plus `params.paths − 1`

@@ -110,10 +110,7 @@ pub(crate) fn run_with(
             }
             (kind, Work::Optimising(mut optimisation)) => {
                 optimisation.run_stage(kind, &stage)?;
-                // The last stage's scene is the output itself.
-                if index + 1 < context.stages().len() {
-                    stage.draft(|| optimisation.draft());
-                }
+                stage.draft(|| optimisation.draft());
                 Work::Optimising(optimisation)
             }
             (kind, _) => {

@@ -267,7 +267,8 @@ pub trait Observer: Sync {
     }
     /// A draft after `stage`: the whole layered scene as the run has it, in the SVG model's
     /// layers and ranges (the final one comes in [`Output`]). One after the init stage and one
-    /// after each later stage but the last, so a front end has a result to show at once.
+    /// after each later stage that changes the picture but the last (the stage list says which:
+    /// `StageSpec::draft`), so a front end has a result to show at once.
     fn draft(&self, _stage: &str, _scene: &Scene) {}
     /// Whether the observer takes drafts: when not, none is made (making one copies the scene
     /// and, before the split, splits the copy).

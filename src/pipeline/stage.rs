@@ -41,6 +41,10 @@ pub struct StageSpec {
     pub layers: &'static [LayerKind],
     /// Its iteration count under the given settings (0: a single step).
     pub iterations: fn(&Iterations) -> u64,
+    /// Whether a draft follows it (see [`super::Observer::draft`]): after every stage that
+    /// changes the picture, but the last, whose scene is the output itself. Not after the
+    /// split: the refinement's draft split a copy the same way.
+    pub draft: bool,
 }
 
 const NONE: fn(&Iterations) -> u64 = |_| 0;
@@ -54,24 +58,28 @@ const DECOMPOSE: StageSpec = StageSpec {
     name: "decompose",
     layers: &[],
     iterations: NONE,
+    draft: false,
 };
 const STRUCTURE: StageSpec = StageSpec {
     kind: StageKind::Structure,
     name: "structure",
     layers: TWO_LAYERS,
     iterations: |it| u64::from(it.structure),
+    draft: true,
 };
 const RECONSTRUCT: StageSpec = StageSpec {
     kind: StageKind::Reconstruct,
     name: "reconstruct",
     layers: TWO_LAYERS,
     iterations: |it| u64::from(it.reconstruction),
+    draft: true,
 };
 const POLISH: StageSpec = StageSpec {
     kind: StageKind::Polish,
     name: "polish",
     layers: ALL_LAYERS,
     iterations: |it| u64::from(it.polish),
+    draft: false,
 };
 
 /// The photo-mode run (the paper's method). Until the split, the illumination layer lives in
@@ -83,6 +91,7 @@ pub const PHOTO_STAGES: &[StageSpec] = &[
         name: "init",
         layers: TWO_LAYERS,
         iterations: NONE,
+        draft: true,
     },
     STRUCTURE,
     RECONSTRUCT,
@@ -91,12 +100,14 @@ pub const PHOTO_STAGES: &[StageSpec] = &[
         name: "refine",
         layers: ILLUMINATION,
         iterations: |it| u64::from(it.refine_rounds) * u64::from(it.refine),
+        draft: true,
     },
     StageSpec {
         kind: StageKind::Split,
         name: "split",
         layers: &[LayerKind::Shade, LayerKind::Light],
         iterations: NONE,
+        draft: false,
     },
     POLISH,
 ];
@@ -109,6 +120,7 @@ pub const SIMPLE_STAGES: &[StageSpec] = &[
         name: "init",
         layers: ALBEDO,
         iterations: NONE,
+        draft: true,
     },
     STRUCTURE,
     RECONSTRUCT,
@@ -117,6 +129,7 @@ pub const SIMPLE_STAGES: &[StageSpec] = &[
         name: "refine",
         layers: ALBEDO,
         iterations: |it| u64::from(it.refine_rounds) * u64::from(it.refine),
+        draft: true,
     },
     POLISH,
 ];
@@ -250,10 +263,11 @@ impl StageRun<'_> {
         self.run.observer.wants_previews()
     }
 
-    /// Hands the observer a draft of the run after this stage, made by `make` only if the
-    /// observer takes drafts (see [`Observer::draft`]).
+    /// Hands the observer a draft of the run after this stage, if one follows it
+    /// ([`StageSpec::draft`]), made by `make` only if the observer takes drafts (see
+    /// [`Observer::draft`]).
     pub fn draft(&self, make: impl FnOnce() -> Scene) {
-        if self.run.observer.wants_drafts() {
+        if self.spec.draft && self.run.observer.wants_drafts() {
             self.run.observer.draft(self.spec.name, &make());
         }
     }

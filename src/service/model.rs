@@ -273,8 +273,8 @@ pub struct JobRecord {
     pub input_name: Option<String>,
 }
 
-/// A job's newest draft (the layered SVG after its latest stage but the last), replaced as stages
-/// end.
+/// A job's newest draft (the layered SVG after its latest stage that made one), replaced as
+/// stages end.
 pub const DRAFT_FILE: &str = "draft.svg";
 
 /// The longest input file name kept, in characters.

@@ -423,6 +423,16 @@ pub(super) fn stored_scene(queue: &Queue, job: &str, prefix: &str) -> Result<Sce
     serde_json::from_slice(&bytes).map_err(|e| ApiError::Internal(format!("stored scene: {e}")))
 }
 
+/// The record of a job whose files are served while it runs (previews, the draft), unless they
+/// were removed.
+async fn files_of(state: &AppState, owner: &Owner, id: &str) -> Result<JobRecord, ApiError> {
+    let record = find(state, owner, id).await?.snapshot();
+    if record.data_removed {
+        return Err(ApiError::DataRemoved(id.to_owned()));
+    }
+    Ok(record)
+}
+
 #[utoipa::path(get, path = "/v1/jobs/{id}/previews", tag = "results", operation_id = "listPreviews",
     summary = "The stage previews so far (each appears as soon as its stage ends)",
     params(("id" = JobId, Path)),
@@ -436,11 +446,7 @@ async fn previews(
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id).await?;
-    let record = entry.snapshot();
-    if record.data_removed {
-        return Err(ApiError::DataRemoved(id));
-    }
+    let record = files_of(&state, &owner, &id).await?;
     let items = record
         .previews
         .iter()
@@ -468,11 +474,7 @@ async fn preview(
     Path((id, file)): Path<(String, String)>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id).await?;
-    let record = entry.snapshot();
-    if record.data_removed {
-        return Err(ApiError::DataRemoved(id));
-    }
+    let record = files_of(&state, &owner, &id).await?;
     // Only names the pipeline reported, which also keeps paths inside the job directory.
     let known = file
         .strip_suffix(".png")
@@ -491,7 +493,9 @@ async fn preview(
 #[utoipa::path(get, path = "/v1/jobs/{id}/draft.svg", tag = "results", operation_id = "getDraft",
     summary = "The job's result so far: a complete layered SVG, improving as stages end",
     description = "Made as soon as the initialisation ends (well before the job does) and \
-        replaced after each later stage but the last; the job's `draft` names the stage, and the \
+        replaced as the structure, reconstruction and refinement stages end (the split's picture \
+        is the refinement's draft, and the polish's is the result); the job's `draft` names the \
+        stage, and the \
         event stream sends `event: draft` when a new one is stored. After the job ends the last \
         draft stays until the results go. 404 `result-not-found` before the first draft.",
     params(("id" = JobId, Path)),
@@ -508,11 +512,7 @@ async fn draft(
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let entry = find(&state, &owner, &id).await?;
-    let record = entry.snapshot();
-    if record.data_removed {
-        return Err(ApiError::DataRemoved(id));
-    }
+    let record = files_of(&state, &owner, &id).await?;
     if record.draft.is_none() {
         return Err(ApiError::ResultNotFound(DRAFT_FILE.to_owned()));
     }

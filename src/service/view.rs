@@ -88,8 +88,9 @@ pub struct JobView {
 }
 
 /// A running job's result so far: the whole layered SVG (albedo, shade, light) as the run has
-/// it after `stage`, made as soon as the initialisation ends and again as later stages end (not
-/// after the last: the result itself follows). Coarse at first, improving with each stage.
+/// it after `stage`, made as soon as the initialisation ends and again as the structure,
+/// reconstruction and refinement stages end (then the result itself follows). Coarse at first,
+/// improving with each stage.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct DraftView {
     /// The stage after which it was made (`init`, `structure`, …).

@@ -701,17 +701,11 @@ async fn a_running_job_has_a_layered_draft_and_its_stream_says_so() {
     let canceled = server.cancel(&id).await;
     assert!(canceled.status.is_success(), "{}", canceled.text());
 
-    // The quick job then runs to its end: its last draft is the one before the last stage,
-    // and stays with the results.
+    // The quick job then runs to its end: its last draft is the refinement's, and stays with
+    // the results.
     let job = server.wait_for(&queued, PATIENCE, terminal).await;
     assert_eq!(job["status"], "succeeded", "{job}");
-    let stage = job["draft"]["stage"].as_str().expect("a draft");
-    let last_but_one = if job["mode"] == "photo" {
-        "split"
-    } else {
-        "refine"
-    };
-    assert_eq!(stage, last_but_one, "{job}");
+    assert_eq!(job["draft"]["stage"], "refine", "{job}");
     let kept = server.get(&format!("/v1/jobs/{queued}/draft.svg")).await;
     assert_eq!(kept.status, StatusCode::OK, "{}", kept.text());
     assert!(kept.text().starts_with("<svg") || kept.text().starts_with("<?xml"));
