@@ -10,7 +10,7 @@ the same machine's) and from the submission, the job's own run time, and the sta
 after; then the medians. Exits 1 if a job has no draft before its end, or a draft does not parse.
 Standard library only.
 
-    python3 benches/service/first_draft.py target/release/covec --bench ../shared/covec-bench \\
+    python3 benches/service/first_draft.py target/release/covec --bench BENCH \\
         [--paths 64] [--threads 2]
 """
 
