@@ -342,6 +342,24 @@ pub fn halve_image(image: &Image) -> Image {
 /// Cargo.toml): what an input may be.
 pub const ACCEPTED_MEDIA_TYPES: [&str; 3] = ["image/png", "image/jpeg", "image/webp"];
 
+/// An image's pixel count, unless it has none or more than `limits` allow: the check a file
+/// gets from its header and pixels in memory from their shape.
+fn check_size(width: u32, height: u32, limits: &Limits) -> Result<u64, InputError> {
+    if width == 0 || height == 0 {
+        return Err(InputError::Empty { width, height });
+    }
+    let pixels = u64::from(width) * u64::from(height);
+    if pixels > limits.max_pixels {
+        return Err(InputError::TooManyPixels {
+            width,
+            height,
+            pixels,
+            max: limits.max_pixels,
+        });
+    }
+    Ok(pixels)
+}
+
 /// The image of `source` as decoded (orientation applied, alpha kept), within `limits`.
 fn oriented(source: Source<'_>, limits: &Limits) -> Result<DynamicImage, InputError> {
     match source {
@@ -359,18 +377,7 @@ fn from_pixels(pixels: Pixels<'_>, limits: &Limits) -> Result<DynamicImage, Inpu
         channels,
         samples,
     } = pixels;
-    if width == 0 || height == 0 {
-        return Err(InputError::Empty { width, height });
-    }
-    let count = u64::from(width) * u64::from(height);
-    if count > limits.max_pixels {
-        return Err(InputError::TooManyPixels {
-            width,
-            height,
-            pixels: count,
-            max: limits.max_pixels,
-        });
-    }
+    let count = check_size(width, height, limits)?;
     if !(1..=4).contains(&channels) {
         return Err(InputError::Channels(channels));
     }
@@ -455,18 +462,7 @@ fn decode_oriented(bytes: &[u8], limits: &Limits) -> Result<DynamicImage, InputE
     reader.no_limits();
     let mut decoder = reader.into_decoder().map_err(undecodable)?;
     let (width, height) = decoder.dimensions();
-    if width == 0 || height == 0 {
-        return Err(InputError::Empty { width, height });
-    }
-    let pixels = u64::from(width) * u64::from(height);
-    if pixels > limits.max_pixels {
-        return Err(InputError::TooManyPixels {
-            width,
-            height,
-            pixels,
-            max: limits.max_pixels,
-        });
-    }
+    check_size(width, height, limits)?;
     let mut decoder_limits = image::Limits::default();
     decoder_limits.max_alloc = Some(limits.max_pixels.saturating_mul(16).max(512 << 20));
     decoder.set_limits(decoder_limits).map_err(undecodable)?;
