@@ -58,6 +58,7 @@ pub(crate) struct OptimiseReport {
 pub(crate) struct Optimisation<'a> {
     pub scene: Scene,
     pub report: OptimiseReport,
+    /// The structure stage's mask groups, until that stage takes them.
     groups: Vec<MaskGroup>,
     /// What paths are held to after the structure stage (photo mode): at full size, then
     /// halved once, twice, … (at least once).
@@ -69,7 +70,6 @@ pub(crate) struct Optimisation<'a> {
     pub mode: ResolvedMode,
     params: &'a Params,
     settings: &'a OptimiseSettings,
-    canvas: Canvas,
     /// The loss after the last stage run, the next stage's `before`.
     loss: f32,
 }
@@ -134,7 +134,6 @@ impl<'a> Optimisation<'a> {
             mode,
             params,
             settings,
-            canvas: Canvas::new(w, h),
             report: OptimiseReport::default(),
             loss: 0.0,
         })
@@ -164,6 +163,13 @@ impl<'a> Optimisation<'a> {
         }
         polish::into_range(&mut scene);
         scene
+    }
+
+    /// A full-size canvas for a stage's loss after it ends: made for the purpose and dropped,
+    /// so that no stage's buffers stay alive through the next (its stored signed areas are
+    /// some of a job's largest).
+    fn canvas(&self) -> Canvas {
+        Canvas::new(self.target.width, self.target.height)
     }
 
     /// How many times the coarse copy is halved (0: no coarse phase).
@@ -256,6 +262,8 @@ impl<'a> Optimisation<'a> {
             settings: &self.settings.structure,
             seed: self.params.seed,
         };
+        // Taken for good: no later stage reads the masks, and at full size they are a large
+        // share of a job's memory.
         let groups = std::mem::take(&mut self.groups);
         let halvings = self.halvings();
         let coarse = self.coarse(halvings, |small, small_target| {
@@ -267,9 +275,9 @@ impl<'a> Optimisation<'a> {
             Ok(None) => optimise_structure(&mut self.scene, &groups, &self.target, &run, stage),
             Err(error) => Err(error),
         };
-        self.groups = groups;
+        drop(groups);
         let losses = losses?;
-        let after = preview_two_layers(&mut self.canvas, &self.scene, &self.target, stage);
+        let after = preview_two_layers(&mut self.canvas(), &self.scene, &self.target, stage);
         self.record(stage, losses[0], after);
         Ok(())
     }
@@ -292,11 +300,11 @@ impl<'a> Optimisation<'a> {
             optimise_reconstruction(scene, target, &run, stage)
         })?;
         let after = if total > 0 {
-            preview_two_layers(&mut self.canvas, &self.scene, &self.target, stage)
+            preview_two_layers(&mut self.canvas(), &self.scene, &self.target, stage)
         } else {
             let mut scratch = Scratch::default();
             reconstruction_loss(
-                &mut self.canvas,
+                &mut self.canvas(),
                 &self.scene,
                 &self.target,
                 &mut scratch,
@@ -377,7 +385,7 @@ impl<'a> Optimisation<'a> {
         // (without one, the fine polish's first loss is that number).
         let before = (coarse_count > 0).then(|| {
             polish::into_range(&mut self.scene);
-            polish::model_loss(&mut self.canvas, &self.scene, &self.target, &full_loss)
+            polish::model_loss(&mut self.canvas(), &self.scene, &self.target, &full_loss)
         });
         let fine = self.coarse_then_fine(total, &polish_parts, |scene, target, part| {
             let coarse_loss;

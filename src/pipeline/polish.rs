@@ -18,7 +18,7 @@ use crate::optim::loss::mse;
 use crate::optim::{Adam, AdamSettings, Bounds};
 use crate::perceptual::GradientSimilarity;
 use crate::render::composite::{svg_model, svg_model_backward};
-use crate::render::{Image, PathGrad, Rasterizer};
+use crate::render::{Image, PathGrad, PixelGrad, Rasterizer};
 use crate::scene::{LayerKind, Path, Scene};
 
 /// Settings of the polish.
@@ -256,8 +256,6 @@ pub(crate) fn polish(
     let mut objective = Joint {
         target: (target, loss_of),
         model,
-        d_layers: Default::default(),
-        d_layers_colours: Default::default(),
         loss: initial,
         held,
         floor,
@@ -288,9 +286,6 @@ pub(crate) fn polish(
 struct Joint<'a> {
     target: (&'a Image, &'a PolishLoss),
     model: SvgModel,
-    d_layers: [Image; 3],
-    /// The layers' gradients for the colours, when [`PolishLoss::colours_apart`].
-    d_layers_colours: [Image; 3],
     /// The loss of the current values.
     loss: f32,
     held: Option<Held<'a>>,
@@ -311,36 +306,28 @@ impl Objective<Scene> for Joint<'_> {
             ..
         } = &mut self.model;
         let apart = self.target.1.colours_apart();
-        let to_layers = |d_composite: &Image, [d_a, d_s, d_l]: &mut [Image; 3]| {
-            svg_model_backward(
-                &layers[0],
-                &layers[1],
-                &layers[2],
-                d_composite,
-                d_a,
-                d_s,
-                d_l,
-            );
-        };
-        to_layers(d_composite, &mut self.d_layers);
+        let [a, s, l] = &*layers;
+        svg_model_backward(a, s, l, d_composite);
         if apart {
-            to_layers(d_composite_colours, &mut self.d_layers_colours);
+            svg_model_backward(a, s, l, d_composite_colours);
         }
+        // A × S + L: the albedo's gradient is the composite's times the shade, the shade's
+        // times the albedo, the light's the composite's.
+        let grad = |factor| PixelGrad {
+            d: &*d_composite,
+            colour: apart.then_some(&*d_composite_colours),
+            factor,
+        };
+        let d_layers = [grad(Some(s)), grad(Some(a)), grad(None)];
         let held = &self.held;
         [canvas, shade, light]
             .into_par_iter()
             .zip(grads.par_iter_mut())
-            .zip(self.d_layers.par_iter().zip(&self.d_layers_colours))
+            .zip(d_layers)
             .zip(LayerKind::ALL.par_iter())
-            .for_each(|(((canvas, grads), (d_layer, d_colours)), &kind)| {
+            .for_each(|(((canvas, grads), grad), &kind)| {
                 let paths = &scene.layer(kind).paths;
-                let base = kind.base();
-                if apart {
-                    let d = (d_layer, d_colours);
-                    canvas.raster.backward_colour_apart(paths, base, d, grads);
-                } else {
-                    canvas.raster.backward(paths, base, d_layer, grads);
-                }
+                canvas.raster.backward_of(paths, kind.base(), grad, grads);
                 if let Some(held) = held {
                     held.add_term(canvas, kind, paths, grads);
                 }

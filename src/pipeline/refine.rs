@@ -17,7 +17,7 @@ use super::structure::Scratch;
 use crate::optim::loss::PartialMse;
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds};
-use crate::render::composite::{product, product_backward, product_range};
+use crate::render::composite::{product, product_range};
 use crate::render::{Image, PathGrad};
 use crate::scene::{LayerKind, Path, Scene};
 
@@ -123,12 +123,17 @@ pub(crate) fn refine(
     canvas.render_layer(scene, other, &mut factor);
     let bounds = Bounds::canvas(w, h, growth.color_max);
     let total_iterations = rounds.total * iterations;
+    // The growing layer's render and its composite share buffers with the rounds' frozen
+    // render, and the composite lives only outside the training: at 1024² every full-size
+    // image is 12 MiB, and this stage sets a job's peak memory.
     let mut frozen = Image::default();
-    let mut grown = Image::default();
-    let mut composite = Image::default();
-    canvas.render_layer(scene, growth.layer, &mut grown);
-    product(&grown, &factor, &mut composite);
-    let initial = crate::optim::loss::mse_value(&composite, target);
+    let layer_loss = |canvas: &mut Canvas, scene: &Scene, layer: &mut Image| {
+        canvas.render_layer(scene, growth.layer, layer);
+        let mut composite = Image::default();
+        product(layer, &factor, &mut composite);
+        (crate::optim::loss::mse_value(&composite, target), composite)
+    };
+    let (initial, _) = layer_loss(&mut canvas, scene, &mut frozen);
 
     for round in rounds.start..rounds.start + rounds.count {
         let remaining = budget.saturating_sub(scene.path_count());
@@ -142,8 +147,7 @@ pub(crate) fn refine(
             ((settings.round_share * remaining as f32) as usize).max(1)
         };
 
-        canvas.render_layer(scene, growth.layer, &mut frozen);
-        product(&frozen, &factor, &mut composite);
+        let (_, composite) = layer_loss(&mut canvas, scene, &mut frozen);
         // Per pixel and per region on rayon's pool: at 1024² the full-size round's setup ran
         // on one thread.
         let error: Vec<f32> = composite
@@ -152,6 +156,7 @@ pub(crate) fn refine(
             .zip(target.data.par_chunks_exact(3))
             .map(|(p, t)| (0..3).map(|c| (p[c] - t[c]) * (p[c] - t[c])).sum())
             .collect();
+        drop(composite);
         let regions = high_error_regions(&error, w, h, count);
         let mut new_paths: Vec<Path> = regions
             .par_iter()
@@ -234,9 +239,7 @@ pub(crate) fn refine(
         scene.layer_mut(growth.layer).paths.extend(new_paths);
     }
 
-    canvas.render_layer(scene, growth.layer, &mut grown);
-    product(&grown, &factor, &mut composite);
-    let loss = crate::optim::loss::mse_value(&composite, target);
+    let (loss, composite) = layer_loss(&mut canvas, scene, &mut frozen);
     if rounds.ends_early() {
         return Ok([initial, loss]);
     }
@@ -247,7 +250,7 @@ pub(crate) fn refine(
         } else {
             "illumination"
         },
-        &grown,
+        &frozen,
     );
     Ok([initial, loss])
 }
@@ -330,7 +333,8 @@ impl Objective<[Path]> for NewPaths<'_> {
             canvas.render_over(paths, backdrop, &mut s.a);
             product(&s.a, factor, &mut s.c);
             let loss = self.mse.update(&s.c, target, &mut s.d_c, None);
-            product_backward(&s.a, factor, &s.d_c, &mut s.d_a, &mut s.d_b);
+            // `d_a` alone: the frame takes no gradient.
+            product(&s.d_c, factor, &mut s.d_a);
             loss
         } else {
             canvas.render_over_strips(paths, backdrop, &self.painted, &mut s.a);
@@ -342,7 +346,6 @@ impl Objective<[Path]> for NewPaths<'_> {
             let loss = self
                 .mse
                 .update(&s.c, target, &mut s.d_c, Some(changed.as_slice()));
-            // Only `d_a` is read (`d_b` is the frame's, which takes no gradient).
             for range in changed {
                 product_range(&s.d_c, factor, &mut s.d_a, range);
             }

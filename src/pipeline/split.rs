@@ -29,11 +29,15 @@ pub(crate) fn split_layers(
 ) -> SplitReport {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
-    let (mut albedo, mut illumination, mut before) =
-        (Image::default(), Image::default(), Image::default());
+    // Full-size images live only while they are needed: at 1024² each is 12 MiB, and this
+    // stage once held eight at a time.
+    let (mut albedo, mut before) = (Image::default(), Image::default());
     canvas.render_layer(scene, LayerKind::Albedo, &mut albedo);
-    canvas.render_layer(scene, LayerKind::Shade, &mut illumination);
-    product(&albedo, &illumination, &mut before);
+    {
+        let mut illumination = Image::default();
+        canvas.render_layer(scene, LayerKind::Shade, &mut illumination);
+        product(&albedo, &illumination, &mut before);
+    }
 
     let (shade, lights): (Vec<Path>, Vec<Path>) = std::mem::take(&mut scene.shade.paths)
         .into_iter()
@@ -70,20 +74,17 @@ pub(crate) fn split_layers(
             }
         })
         .collect();
+    drop(residual_base);
 
     let mut light = Image::default();
     canvas.render_layer(scene, LayerKind::Light, &mut light);
     let mut after = Image::default();
     svg_model(&albedo, &shaded, &light, &mut after);
-    let clamped_before = Image {
-        data: before.data.iter().map(|v| v.clamp(0.0, 1.0)).collect(),
-        ..before.clone()
-    };
-    let mean_change = clamped_before
+    let mean_change = before
         .data
         .iter()
         .zip(&after.data)
-        .map(|(a, b)| (a - b).abs())
+        .map(|(a, b)| (a.clamp(0.0, 1.0) - b).abs())
         .sum::<f32>()
         / after.data.len().max(1) as f32;
     if let Some(stage) = previews {

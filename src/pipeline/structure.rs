@@ -15,8 +15,8 @@ use crate::decompose::mask::Mask;
 use crate::optim::loss::{mse, overlap_penalty};
 use crate::optim::rng::Rng;
 use crate::optim::{Adam, AdamSettings, Bounds};
-use crate::render::composite::{product, product_backward};
-use crate::render::{Image, PathGrad};
+use crate::render::composite::product;
+use crate::render::{Image, PathGrad, PixelGrad};
 use crate::scene::{LayerKind, Path, Scene};
 use rayon::prelude::*;
 
@@ -280,15 +280,19 @@ pub(crate) fn reconstruction_loss(
     product(&s.a, &s.b, &mut s.c);
     let loss = mse(&s.c, target, &mut s.d_c);
     if let Some((grads_a, grads_i)) = grads {
-        product_backward(&s.a, &s.b, &s.d_c, &mut s.d_a, &mut s.d_b);
+        // Each layer's gradient is the product's times the other layer.
+        let times = |factor| PixelGrad {
+            factor: Some(factor),
+            ..PixelGrad::of(&s.d_c)
+        };
         rayon::join(
             || {
                 let (paths, base) = (&scene.albedo.paths, LayerKind::Albedo.base());
-                canvas.raster.backward(paths, base, &s.d_a, grads_a)
+                canvas.raster.backward_of(paths, base, times(&s.b), grads_a)
             },
             || {
                 let (paths, base) = (&scene.shade.paths, LayerKind::Shade.base());
-                second.raster.backward(paths, base, &s.d_b, grads_i)
+                second.raster.backward_of(paths, base, times(&s.a), grads_i)
             },
         );
     }

@@ -213,6 +213,8 @@ pub(super) struct Band<'a> {
     pub d_out: &'a Image,
     /// dL/dPixel for the fill colours, when it is not `d_out`.
     pub d_colour: Option<&'a Image>,
+    /// A factor both are multiplied by, value by value, when given.
+    pub factor: Option<&'a Image>,
     pub band: usize,
     pub rows_per_pass: usize,
     /// The signed areas the forward kept for this band's strip, if it kept them.
@@ -348,11 +350,15 @@ impl Band<'_> {
         work.grad.resize(3 * planes, 0.0);
         self.fill_backdrop(y, planes, &mut work.color);
         let row = 3 * y * width..3 * (y + 1) * width;
-        to_planes(&self.d_out.data[row.clone()], planes, &mut work.grad);
+        let (d_row, factor) = (
+            &self.d_out.data[row.clone()],
+            self.factor.map(|f| &f.data[row.clone()]),
+        );
+        to_planes(d_row, factor, planes, &mut work.grad);
         match self.d_colour {
             Some(d_colour) => {
                 work.grad_colour.resize(3 * planes, 0.0);
-                to_planes(&d_colour.data[row], planes, &mut work.grad_colour);
+                to_planes(&d_colour.data[row], factor, planes, &mut work.grad_colour);
             }
             None => work.grad_colour.clear(),
         }
@@ -379,9 +385,9 @@ impl Band<'_> {
 }
 
 /// An interleaved RGB row as three channel planes of `planes` values each (zero past the row)
-/// in `out`.
+/// in `out`, times `factor` (a row like it) value by value when given.
 #[inline(always)]
-fn to_planes(row: &[f32], planes: usize, out: &mut [f32]) {
+fn to_planes(row: &[f32], factor: Option<&[f32]>, planes: usize, out: &mut [f32]) {
     let width = row.len() / 3;
     let (r, rest) = out.split_at_mut(planes);
     let (g, b) = rest.split_at_mut(planes);
@@ -389,6 +395,13 @@ fn to_planes(row: &[f32], planes: usize, out: &mut [f32]) {
         r[x] = px[0];
         g[x] = px[1];
         b[x] = px[2];
+    }
+    if let Some(factor) = factor {
+        for (x, f) in factor.chunks_exact(3).enumerate() {
+            r[x] *= f[0];
+            g[x] *= f[1];
+            b[x] *= f[2];
+        }
     }
     for plane in [r, g, b] {
         plane[width..].fill(0.0);
@@ -679,7 +692,8 @@ impl Band<'_> {
                 }
             }
             Backdrop::Image(image) => {
-                to_planes(&image.data[3 * y * width..3 * (y + 1) * width], planes, out);
+                let row = &image.data[3 * y * width..3 * (y + 1) * width];
+                to_planes(row, None, planes, out);
             }
         }
     }

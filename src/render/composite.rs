@@ -67,25 +67,6 @@ pub fn product_range(a: &Image, b: &Image, out: &mut Image, range: Range<usize>)
         });
 }
 
-/// Backward of [`product`]: writes `d_a = d_out · b` and `d_b = d_out · a` (both resized).
-pub fn product_backward(a: &Image, b: &Image, d_out: &Image, d_a: &mut Image, d_b: &mut Image) {
-    check_same(&[a, b, d_out]);
-    d_a.resize(a.width, a.height);
-    d_b.resize(a.width, a.height);
-    d_a.data
-        .par_chunks_mut(CHUNK)
-        .zip(d_b.data.par_chunks_mut(CHUNK))
-        .zip(a.data.par_chunks(CHUNK).zip(b.data.par_chunks(CHUNK)))
-        .zip(d_out.data.par_chunks(CHUNK))
-        .for_each(|(((d_a, d_b), (a, b)), g)| {
-            let values = d_a.iter_mut().zip(d_b).zip(a.iter().zip(b)).zip(g);
-            widest!(for (((d_a, d_b), (&a, &b)), &g) in values {
-                *d_a = g * b;
-                *d_b = g * a;
-            })
-        });
-}
-
 /// `out = clamp01(a · s + l)` per channel: albedo, shade (multiply) and light (plus-lighter).
 pub fn svg_model(a: &Image, s: &Image, l: &Image, out: &mut Image) {
     check_same(&[a, s, l]);
@@ -103,38 +84,24 @@ pub fn svg_model(a: &Image, s: &Image, l: &Image, out: &mut Image) {
         });
 }
 
-/// Backward of [`svg_model`]: writes `d_a = g·s`, `d_s = g·a`, `d_l = g` where `g = d_out` if
-/// `0 ≤ a·s + l ≤ 1` and 0 where the clamp is active. The bounds count as inside, so a pixel
-/// sitting exactly at white (the common `1 · 1 + 0`) can still be pulled back into range.
-pub fn svg_model_backward(
-    a: &Image,
-    s: &Image,
-    l: &Image,
-    d_out: &Image,
-    d_a: &mut Image,
-    d_s: &mut Image,
-    d_l: &mut Image,
-) {
+/// Backward of [`svg_model`]: turns `d_out` into `g`, where `g = d_out` if `0 ≤ a·s + l ≤ 1`
+/// and 0 where the clamp is active. Then the light's gradient is `g`, the albedo's `g·s` and
+/// the shade's `g·a`: [`PixelGrad`](super::PixelGrad)s with a factor, so no full-size image
+/// is made for them. The bounds count as inside, so a pixel sitting exactly at white (the
+/// common `1 · 1 + 0`) can still be pulled back into range.
+pub fn svg_model_backward(a: &Image, s: &Image, l: &Image, d_out: &mut Image) {
     check_same(&[a, s, l, d_out]);
-    for d in [&mut *d_a, &mut *d_s, &mut *d_l] {
-        d.resize(a.width, a.height);
-    }
-    d_a.data
+    d_out
+        .data
         .par_chunks_mut(CHUNK)
-        .zip(d_s.data.par_chunks_mut(CHUNK))
-        .zip(d_l.data.par_chunks_mut(CHUNK))
         .zip(a.data.par_chunks(CHUNK).zip(s.data.par_chunks(CHUNK)))
-        .zip(l.data.par_chunks(CHUNK).zip(d_out.data.par_chunks(CHUNK)))
-        .for_each(|((((d_a, d_s), d_l), (a, s)), (l, d_out))| {
-            let outs = d_a.iter_mut().zip(d_s).zip(d_l);
-            let ins = a.iter().zip(s).zip(l.iter().zip(d_out));
+        .zip(l.data.par_chunks(CHUNK))
+        .for_each(|((d_out, (a, s)), l)| {
             widest!(
-                for (((d_a, d_s), d_l), ((&a, &s), (&l, &d_out))) in outs.zip(ins) {
-                    let v = a * s + l;
-                    let g = if (0.0..=1.0).contains(&v) { d_out } else { 0.0 };
-                    *d_a = g * s;
-                    *d_s = g * a;
-                    *d_l = g;
+                for ((d_out, (&a, &s)), &l) in d_out.iter_mut().zip(a.iter().zip(s)).zip(l) {
+                    if !(0.0..=1.0).contains(&(a * s + l)) {
+                        *d_out = 0.0;
+                    }
                 }
             )
         });

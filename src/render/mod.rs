@@ -7,9 +7,10 @@
 //!   each path's alpha at a pixel is its exact area coverage × opacity. Non-zero fill.
 //! - [`Rasterizer::backward`] takes dLoss/dPixel for that same render and **adds** dLoss/d(points,
 //!   colour, opacity) into `grads` (one [`PathGrad`] per path, same shapes as the paths).
-//! - [`Rasterizer::backward_colour_apart`] is the same backward with the fill colours' share
-//!   taken from a second dLoss/dPixel: for a loss whose terms weigh on the colours otherwise
-//!   than on geometry and opacity.
+//! - [`Rasterizer::backward_of`] is the same backward for a [`PixelGrad`]: the fill colours'
+//!   share may come from a second dLoss/dPixel (for a loss whose terms weigh on the colours
+//!   otherwise than on geometry and opacity), and both may be multiplied by a factor image
+//!   (for a render that is one factor of a product, such as a layer under `multiply`).
 //! - Colours are not clamped here (illumination colours may exceed 1); opacities must be in [0, 1].
 //! - Results are bit-identical whatever the rayon thread count.
 //! - [`Rasterizer::render_over_strips`] renders chosen strips of [`STRIP_ROWS`] rows only, each
@@ -38,8 +39,9 @@
 //! points, go path by path on the pool, each path's arithmetic as on one thread. Per-thread
 //! buffers live in the [`Rasterizer`] and are reused, so after the first call neither pass
 //! allocates. The rasteriser keeps the last few geometries
-//! flattened, and with each the signed areas its forward computed, so the backward that follows
-//! a render of the same geometry reads them instead of scan-converting again. Work per path is
+//! flattened, and the signed areas of the last geometry a forward stored them for, so the
+//! backward that follows a render of the same geometry reads them instead of scan-converting
+//! again. Work per path is
 //! proportional to the rows of its bounding box times the width of its edges' span in each row,
 //! never W×H×paths.
 //!
@@ -250,6 +252,29 @@ struct Scratch {
     backward: backward::Workspace,
 }
 
+/// dLoss/dPixel of one render, as [`Rasterizer::backward_of`] reads it.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelGrad<'a> {
+    /// For the points and opacities, and for the colours without `colour`.
+    pub d: &'a Image,
+    /// For the fill colours, when they take a gradient of their own.
+    pub colour: Option<&'a Image>,
+    /// What `d` and `colour` are multiplied by, value by value, when given: the render is
+    /// one factor of a product, whose gradient then needs no image of its own.
+    pub factor: Option<&'a Image>,
+}
+
+impl<'a> PixelGrad<'a> {
+    /// `d` for everything.
+    pub fn of(d: &'a Image) -> Self {
+        Self {
+            d,
+            colour: None,
+            factor: None,
+        }
+    }
+}
+
 /// Geometries a rasteriser keeps flattened. An optimisation step renders and then
 /// differentiates the same geometry (the polish three layers, the reconstruction two, in turn),
 /// and the structure loss draws one geometry in two paints, so an unchanged geometry is not
@@ -257,26 +282,30 @@ struct Scratch {
 const FLAT_CACHE: usize = 3;
 
 /// One flattened geometry and what it was built from: every path's points (and whether it was
-/// drawable), in order.
+/// drawable), in order, and a number no other flattening of this rasteriser had.
 #[derive(Default)]
 struct CachedFlat {
     flat: FlatScene<f32>,
     source: Vec<Point>,
     shape: Vec<(usize, bool)>,
-    areas: StoredAreas,
+    id: u64,
 }
 
-/// Most signed-area values a rasteriser keeps per geometry (64 MiB); a scene whose paths'
-/// bounding boxes hold more is scan-converted again in the backward.
+/// Most signed-area values a rasteriser keeps (64 MiB); a scene whose paths' bounding boxes
+/// hold more is scan-converted again in the backward.
 const STORED_AREA_LIMIT: f64 = 16.0 * 1024.0 * 1024.0;
 
-/// The signed areas the forward computed for one geometry, kept for its backward: every
+/// The signed areas a forward computed for one geometry, kept for its backward: every
 /// optimisation step renders a geometry and then differentiates it, and the signed areas depend
-/// on the geometry alone, so the backward need not scan-convert every path again.
+/// on the geometry alone, so the backward need not scan-convert every path again. One set per
+/// rasteriser, not one per cached geometry: every loop differentiates the geometry it rendered
+/// last, and a set per geometry held up to [`FLAT_CACHE`] times the memory, most of it for
+/// geometries an optimisation step had already left.
 #[derive(Default)]
 struct StoredAreas {
-    /// The canvas size they were computed at; `None` until a forward stores them.
-    size: Option<(usize, usize)>,
+    /// The [`CachedFlat::id`] and canvas size they were computed for; `None` until a forward
+    /// stores them.
+    owner: Option<(u64, usize, usize)>,
     strips: Vec<StripAreas<f32>>,
 }
 
@@ -311,9 +340,9 @@ impl CachedFlat {
             && paths.iter().flat_map(|p| &p.points).eq(self.source.iter())
     }
 
-    fn fill(&mut self, paths: &[Path], flattening: Flattening) {
+    fn fill(&mut self, paths: &[Path], flattening: Flattening, id: u64) {
         self.flat.build(paths, flattening);
-        self.areas.size = None;
+        self.id = id;
         self.source.clear();
         self.source
             .extend(paths.iter().flat_map(|p| p.points.iter().copied()));
@@ -332,6 +361,9 @@ pub struct Rasterizer {
     flattening: Flattening,
     /// The last [`FLAT_CACHE`] geometries flattened, the current one first.
     flats: Vec<CachedFlat>,
+    /// How many flattenings this rasteriser has made: the next one's [`CachedFlat::id`].
+    flattened: u64,
+    areas: StoredAreas,
     pool: Mutex<Vec<Scratch>>,
     bands: Vec<backward::BandGrads>,
 }
@@ -438,7 +470,8 @@ impl Rasterizer {
             return;
         }
         self.build(paths);
-        let CachedFlat { flat, areas, .. } = &mut self.flats[0];
+        let CachedFlat { flat, id, .. } = &self.flats[0];
+        let (areas, owner) = (&mut self.areas, Some((*id, width, height)));
         let strip_count = height.div_ceil(STRIP_ROWS);
         // A selection stores the signed areas only when it holds every strip a path meets
         // (the others store none), so that the backward can read them for every band.
@@ -446,7 +479,7 @@ impl Rasterizer {
             (0..strip_count).all(|s| selected[s] || !strip_met(flat, s, width, height))
         });
         let store = complete
-            && areas.size != Some((width, height))
+            && areas.owner != owner
             && backward::covered_area(flat, width, height) <= STORED_AREA_LIMIT;
         if store && areas.strips.len() < strip_count {
             areas.strips.resize_with(strip_count, Default::default);
@@ -478,7 +511,7 @@ impl Rasterizer {
                         stored.clear();
                     }
                 });
-            areas.size = Some((width, height));
+            areas.owner = owner;
         } else {
             chunks
                 .enumerate()
@@ -536,24 +569,28 @@ impl Rasterizer {
         self.backward_over(paths, Backdrop::Color(base), d_out, grads);
     }
 
-    /// [`backward`](Self::backward), but dLoss/d(fill colour) from `d_colour` (another
-    /// dLoss/dPixel of the same render) rather than `d_out`: the points and opacities get
-    /// `d_out`'s gradient, the colours `d_colour`'s, in one pass.
+    /// [`backward`](Self::backward) for `grad`: the points and opacities get `grad.d`'s
+    /// gradient and the colours `grad.colour`'s (`grad.d`'s without one), in one pass, both
+    /// times `grad.factor` when it is given.
     ///
     /// # Panics
-    /// As [`backward`](Self::backward), and if `d_colour` is not `d_out`'s size.
-    pub fn backward_colour_apart(
+    /// As [`backward`](Self::backward), and if `grad.colour` or `grad.factor` is not
+    /// `grad.d`'s size.
+    pub fn backward_of(
         &mut self,
         paths: &[Path],
         base: [f32; 3],
-        (d_out, d_colour): (&Image, &Image),
+        grad: PixelGrad,
         grads: &mut [PathGrad],
     ) {
-        assert!(
-            (d_colour.width, d_colour.height) == (d_out.width, d_out.height) && d_colour.is_whole(),
-            "d_colour must be d_out's size"
-        );
-        self.backward_in(paths, Backdrop::Color(base), (d_out, Some(d_colour)), grads);
+        let (width, height) = (grad.d.width, grad.d.height);
+        for other in grad.colour.iter().chain(&grad.factor) {
+            assert!(
+                (other.width, other.height) == (width, height) && other.is_whole(),
+                "a PixelGrad's images must be one size"
+            );
+        }
+        self.backward_in(paths, Backdrop::Color(base), grad, grads);
     }
 
     /// [`backward`](Self::backward) of [`render_over`](Self::render_over) with `backdrop`.
@@ -567,17 +604,18 @@ impl Rasterizer {
         d_out: &Image,
         grads: &mut [PathGrad],
     ) {
-        self.backward_in(paths, backdrop, (d_out, None), grads);
+        self.backward_in(paths, backdrop, PixelGrad::of(d_out), grads);
     }
 
-    /// The backward, with the colours' dLoss/dPixel apart when one is given.
+    /// The backward of `grad` (its images checked to be one size).
     fn backward_in(
         &mut self,
         paths: &[Path],
         backdrop: Backdrop,
-        (d_out, d_colour): (&Image, Option<&Image>),
+        grad: PixelGrad,
         grads: &mut [PathGrad],
     ) {
+        let d_out = grad.d;
         let (width, height) = (d_out.width, d_out.height);
         backdrop.check_size(width, height);
         assert!(d_out.is_whole(), "d_out must be width × height × 3");
@@ -590,8 +628,10 @@ impl Rasterizer {
         if self.bands.len() < band_count {
             self.bands.resize_with(band_count, Default::default);
         }
-        let CachedFlat { flat, areas, .. } = &self.flats[0];
-        let stored = (areas.size == Some((width, height))).then(|| &areas.strips[..band_count]);
+        let CachedFlat { flat, id, .. } = &self.flats[0];
+        let areas = &self.areas;
+        let stored =
+            (areas.owner == Some((*id, width, height))).then(|| &areas.strips[..band_count]);
         let rows_per_pass = backward::rows_per_pass(flat, width, height);
         let pool = &self.pool;
         self.bands[..band_count]
@@ -604,7 +644,8 @@ impl Rasterizer {
                     paths,
                     backdrop,
                     d_out,
-                    d_colour,
+                    d_colour: grad.colour,
+                    factor: grad.factor,
                     band,
                     rows_per_pass,
                     stored: stored.map(|strips| &strips[band]),
@@ -637,7 +678,8 @@ impl Rasterizer {
                     self.flats.push(CachedFlat::default());
                 }
                 let last = self.flats.len() - 1;
-                self.flats[last].fill(paths, self.flattening);
+                self.flattened += 1;
+                self.flats[last].fill(paths, self.flattening, self.flattened);
                 last
             }
         };

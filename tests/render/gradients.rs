@@ -2,8 +2,8 @@
 
 use crate::render_support;
 
-use covec::render::composite::{product, product_backward};
-use covec::render::{Backdrop, Flattening, Image, PathGrad, Rasterizer};
+use covec::render::composite::product;
+use covec::render::{Backdrop, Flattening, Image, PathGrad, PixelGrad, Rasterizer};
 use covec::scene::Path;
 use render_support::*;
 
@@ -165,11 +165,14 @@ fn product_composite_gradients_match_finite_differences() {
     let mut layers = [albedo, illum];
     let (a, i, v) = forward(&layers, &mut raster);
     let (_, d_v) = weighted_sq_loss(&v, &target, &weights);
-    let (mut d_a, mut d_i) = (Image::default(), Image::default());
-    product_backward(&a, &i, &d_v, &mut d_a, &mut d_i);
+    // Each layer's dL/dPixel is the product's times the other layer.
+    let times = |factor| PixelGrad {
+        factor: Some(factor),
+        ..PixelGrad::of(&d_v)
+    };
     let mut grads = [zero_grads(&layers[0]), zero_grads(&layers[1])];
-    raster.backward(&layers[0], bases[0], &d_a, &mut grads[0]);
-    raster.backward(&layers[1], bases[1], &d_i, &mut grads[1]);
+    raster.backward_of(&layers[0], bases[0], times(&i), &mut grads[0]);
+    raster.backward_of(&layers[1], bases[1], times(&a), &mut grads[1]);
 
     check_all(&mut layers, &grads, |layers| {
         let a = raster.render_f64(&layers[0], bases[0], size, size);
@@ -309,7 +312,11 @@ fn a_backward_with_the_colours_apart_is_two_backwards_in_one() {
     let [d_out, d_colour] = &d;
 
     let mut apart = zero_grads(&paths);
-    raster.backward_colour_apart(&paths, base, (d_out, d_colour), &mut apart);
+    let grad = PixelGrad {
+        colour: Some(d_colour),
+        ..PixelGrad::of(d_out)
+    };
+    raster.backward_of(&paths, base, grad, &mut apart);
     let (mut shapes, mut colours) = (zero_grads(&paths), zero_grads(&paths));
     raster.backward(&paths, base, d_out, &mut shapes);
     raster.backward(&paths, base, d_colour, &mut colours);
@@ -319,4 +326,46 @@ fn a_backward_with_the_colours_apart_is_two_backwards_in_one() {
         assert_eq!(g.color.map(f32::to_bits), c.color.map(f32::to_bits));
     }
     assert!(colours.iter().any(|c| c.color != [0.0; 3]));
+}
+
+#[test]
+fn a_backward_with_a_factor_is_the_backward_of_the_product() {
+    // dL/dPixel times a factor image, value by value, bit for bit as the backward of that
+    // product made as an image; with the colours apart, both are multiplied.
+    let size = 40;
+    let mut rng = SplitMix64(35);
+    let paths = mixed_scene(&mut rng, size as f32, 6, 2);
+    let base = [1.0; 3];
+    let mut raster = Rasterizer::new();
+    let image = render(&mut raster, &paths, base, size);
+    let [d_out, d_colour, factor] = [0, 1, 2].map(|_| {
+        let (target, weights) = target_and_weights(&mut rng, size * size * 3);
+        weighted_sq_loss(&image, &target, &weights).1
+    });
+    let times = |d: &Image| {
+        let mut out = Image::default();
+        product(d, &factor, &mut out);
+        out
+    };
+    let (d_product, colour_product) = (times(&d_out), times(&d_colour));
+
+    let mut scaled = zero_grads(&paths);
+    let grad = PixelGrad {
+        d: &d_out,
+        colour: Some(&d_colour),
+        factor: Some(&factor),
+    };
+    raster.backward_of(&paths, base, grad, &mut scaled);
+    let mut expected = zero_grads(&paths);
+    let grad = PixelGrad {
+        colour: Some(&colour_product),
+        ..PixelGrad::of(&d_product)
+    };
+    raster.backward_of(&paths, base, grad, &mut expected);
+    for (g, e) in scaled.iter().zip(&expected) {
+        assert_eq!(g.points, e.points);
+        assert_eq!(g.opacity.to_bits(), e.opacity.to_bits());
+        assert_eq!(g.color.map(f32::to_bits), e.color.map(f32::to_bits));
+    }
+    assert!(scaled.iter().any(|g| g.color != [0.0; 3]));
 }
