@@ -41,6 +41,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    cli::malloc::map_large_buffers();
     let result = match cli.command {
         Command::Vectorize(args) => cli::vectorize(&args),
         Command::Edit(args) => cli::edit::run(&args).map_err(|e| e.to_string()),

@@ -7,6 +7,7 @@ pub mod eval;
 pub mod healthcheck;
 pub mod intrinsic;
 pub mod io;
+pub mod malloc;
 #[cfg(feature = "service")]
 pub mod openapi;
 pub mod reference;

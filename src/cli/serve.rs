@@ -342,30 +342,11 @@ fn start(command: &str, log: &LogArgs) -> Result<tokio::runtime::Runtime, ExitCo
         LogFormat::Text => logs.with_ansi(std::io::stderr().is_terminal()).init(),
         LogFormat::Json => logs.json().init(),
     }
-    limit_malloc_arenas();
+    super::malloc::limit_arenas();
     tokio::runtime::Runtime::new().map_err(|error| {
         eprintln!("covec {command}: cannot start the async runtime: {error}");
         ExitCode::FAILURE
     })
-}
-
-/// Caps glibc's malloc arenas at one per core, unless `MALLOC_ARENA_MAX` sets them.
-///
-/// glibc gives each new thread an arena of its own while fewer than 8 per core exist, and
-/// each arena keeps its own high water of freed memory. A service process has many threads
-/// (three runtimes and their blocking pools), so its heap crept under the chaos harness
-/// (docs/history.md, "Malloc arenas"). One per core is enough for the pipeline's threads (one
-/// per core) not to wait for each other.
-fn limit_malloc_arenas() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    if std::env::var_os("MALLOC_ARENA_MAX").is_none() {
-        let arenas = libc::c_int::try_from(malloc_arena_limit()).unwrap_or(libc::c_int::MAX);
-        // SAFETY: mallopt only sets a limit that later allocations read; it is called before
-        // this process starts any thread of its own.
-        unsafe {
-            libc::mallopt(libc::M_ARENA_MAX, arenas);
-        }
-    }
 }
 
 pub fn work(args: WorkerArgs) -> ExitCode {
@@ -412,59 +393,5 @@ pub fn run(args: ServeArgs) -> ExitCode {
             eprintln!("covec serve: {error}");
             ExitCode::FAILURE
         }
-    }
-}
-
-/// One arena per core, at least two (the main one and one for all other threads).
-#[cfg(all(target_os = "linux", target_env = "gnu"))]
-fn malloc_arena_limit() -> usize {
-    std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .max(2)
-}
-
-#[cfg(all(test, target_os = "linux", target_env = "gnu"))]
-mod tests {
-    use super::{limit_malloc_arenas, malloc_arena_limit};
-
-    /// The malloc arenas of this process, from glibc's own report.
-    fn malloc_arenas() -> usize {
-        let mut buffer = std::ptr::null_mut();
-        let mut size = 0;
-        // SAFETY: glibc writes the report into a buffer it allocates, read and freed here.
-        unsafe {
-            let stream = libc::open_memstream(&mut buffer, &mut size);
-            assert!(!stream.is_null());
-            libc::malloc_info(0, stream);
-            libc::fclose(stream);
-            let report = std::ffi::CStr::from_ptr(buffer)
-                .to_string_lossy()
-                .into_owned();
-            libc::free(buffer.cast());
-            report.matches("<heap nr=").count()
-        }
-    }
-
-    #[test]
-    fn many_threads_alive_at_once_make_no_more_arenas_than_cores() {
-        limit_malloc_arenas();
-        let before = malloc_arenas();
-        let threads = 16;
-        let all_allocated = std::sync::Barrier::new(threads);
-        std::thread::scope(|scope| {
-            for _ in 0..threads {
-                scope.spawn(|| {
-                    let block = std::hint::black_box(vec![1u8; 4096]);
-                    all_allocated.wait();
-                    drop(block);
-                });
-            }
-        });
-        // Without the limit each of the threads alive together takes an arena of its own.
-        assert!(
-            malloc_arenas() <= before.max(malloc_arena_limit()),
-            "{} arenas",
-            malloc_arenas()
-        );
     }
 }
