@@ -123,9 +123,8 @@ pub(crate) fn refine(
     canvas.render_layer(scene, other, &mut factor);
     let bounds = Bounds::canvas(w, h, growth.color_max);
     let total_iterations = rounds.total * iterations;
-    // The growing layer's render and its composite share buffers with the rounds' frozen
-    // render, and the composite lives only outside the training: at 1024² every full-size
-    // image is 12 MiB, and this stage sets a job's peak memory.
+    // The growing layer's render shares its buffer with the rounds' frozen render, and the
+    // composite lives only outside the training: full-size images are a job's largest buffers.
     let mut frozen = Image::default();
     let layer_loss = |canvas: &mut Canvas, scene: &Scene, layer: &mut Image| {
         canvas.render_layer(scene, growth.layer, layer);

@@ -29,8 +29,7 @@ pub(crate) fn split_layers(
 ) -> SplitReport {
     let (w, h) = (target.width, target.height);
     let mut canvas = Canvas::new(w, h);
-    // Full-size images live only while they are needed: at 1024² each is 12 MiB, and this
-    // stage once held eight at a time.
+    // Full-size images live only while they are needed: they are a job's largest buffers.
     let (mut albedo, mut before) = (Image::default(), Image::default());
     canvas.render_layer(scene, LayerKind::Albedo, &mut albedo);
     {
