@@ -69,6 +69,7 @@ pub fn run(args: &Args) -> Result<(), BatchError> {
         ("--layers", args.layers.is_some()),
         ("--width", args.width.is_some()),
         ("--flatten", args.flatten),
+        ("--stages", args.stages),
         ("--format", args.format.is_some()),
         (
             "- (standard input)",

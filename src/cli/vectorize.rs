@@ -4,6 +4,7 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::AtomicBool;
+use std::time::Duration;
 
 use clap::Args as ClapArgs;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -105,6 +106,10 @@ pub struct Args {
     /// Use a JPEG cut short (its missing part decodes as grey) instead of refusing it.
     #[arg(long)]
     pub accept_truncated: bool,
+    /// After the run, print on standard error each stage's optimisation steps, seconds and
+    /// last loss: where a run spends its time. One image only.
+    #[arg(long)]
+    pub stages: bool,
 }
 
 /// Why `covec vectorize` failed; printed as one line.
@@ -133,12 +138,15 @@ pub fn run(input: &Path, args: &Args) -> Result<(), Error> {
     if args.threads.is_some() || args.jobs.is_some() {
         return Err(Error::BatchOptionForOneImage);
     }
-    let observer = CliObserver::new(args.previews.clone());
+    let observer = CliObserver::new(args.previews.clone(), args.stages);
     if let Some(dir) = &args.previews {
         io::create_dir(dir)?;
     }
     let result = vectorize_file(input, args, &observer);
     observer.finish();
+    if let Some(stages) = &observer.stages {
+        eprint!("{}", stages.lock().expect("not poisoned").table());
+    }
     if let Some(error) = observer.write_error.into_inner().expect("not poisoned") {
         return Err(error.into());
     }
@@ -290,16 +298,71 @@ pub(super) fn read_mask_dir(dir: &Path, limits: &Limits) -> Result<Vec<image::Gr
     })
 }
 
-/// A progress bar on a terminal (silent otherwise), and preview PNGs into a directory.
+/// A progress bar on a terminal (silent otherwise), preview PNGs into a directory, and the
+/// stages' times when asked.
 struct CliObserver {
     bar: Option<ProgressBar>,
     previews: Option<PathBuf>,
     /// The first preview that could not be written; reported after the run.
     write_error: Mutex<Option<IoError>>,
+    stages: Option<Mutex<StageTimes>>,
+}
+
+/// Per stage, from its progress reports: the optimisation steps it ran (the distinct
+/// iteration numbers it reported, so early stops show), when its last report came and its
+/// last loss.
+#[derive(Default)]
+struct StageTimes {
+    rows: Vec<StageTime>,
+}
+
+struct StageTime {
+    name: &'static str,
+    steps: u32,
+    last_iteration: u32,
+    end: Duration,
+    loss: Option<f32>,
+}
+
+impl StageTimes {
+    fn record(&mut self, p: &Progress) {
+        if self.rows.last().is_none_or(|row| row.name != p.stage) {
+            self.rows.push(StageTime {
+                name: p.stage,
+                steps: 0,
+                last_iteration: 0,
+                end: p.elapsed,
+                loss: None,
+            });
+        }
+        let row = self.rows.last_mut().expect("pushed above");
+        if p.iteration > row.last_iteration {
+            row.steps += 1;
+            row.last_iteration = p.iteration;
+        }
+        row.end = p.elapsed;
+        row.loss = p.loss.or(row.loss);
+    }
+
+    /// A stage's seconds run from the report that ended the stage before it.
+    fn table(&self) -> String {
+        let mut out = format!(
+            "{:<12} {:>6} {:>8}  {}\n",
+            "stage", "steps", "seconds", "loss"
+        );
+        let mut start = Duration::ZERO;
+        for row in &self.rows {
+            let loss = row.loss.map(|l| format!("{l:.6}")).unwrap_or_default();
+            let seconds = row.end.saturating_sub(start).as_secs_f64();
+            out += &format!("{:<12} {:>6} {seconds:>8.3}  {loss}\n", row.name, row.steps);
+            start = row.end;
+        }
+        out + &format!("{:<12} {:>6} {:>8.3}\n", "run", "", start.as_secs_f64())
+    }
 }
 
 impl CliObserver {
-    fn new(previews: Option<PathBuf>) -> Self {
+    fn new(previews: Option<PathBuf>, stages: bool) -> Self {
         let bar = std::io::stderr().is_terminal().then(|| {
             let bar = ProgressBar::new(1);
             bar.set_style(
@@ -312,6 +375,7 @@ impl CliObserver {
             bar,
             previews,
             write_error: Mutex::new(None),
+            stages: stages.then(Mutex::default),
         }
     }
 
@@ -324,6 +388,9 @@ impl CliObserver {
 
 impl Observer for CliObserver {
     fn progress(&self, p: &Progress) {
+        if let Some(stages) = &self.stages {
+            stages.lock().expect("not poisoned").record(p);
+        }
         if let Some(bar) = &self.bar {
             bar.set_length(1000);
             bar.set_position((p.fraction() * 1000.0) as u64);

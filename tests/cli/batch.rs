@@ -140,10 +140,11 @@ fn batches_refuse_clashing_names_and_per_image_options_before_running() {
     let out_dir = dir.join("out");
     let path = |name: &str| dir.join(name).to_str().unwrap().to_owned();
     let (a, x, l) = (path("a"), path("x.png"), path("l"));
-    let cases: [(Vec<&str>, &str); 4] = [
+    let cases: [(Vec<&str>, &str); 5] = [
         (vec![&a, &x], "would both be written as x.svg"),
         (vec![&a], "needs -o DIR"),
         (vec![&a, "--layers", &l], "--layers applies to one image"),
+        (vec![&a, "--stages"], "--stages applies to one image"),
         (
             vec![&x, "--jobs", "2"],
             "--threads and --jobs apply to a batch",

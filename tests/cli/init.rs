@@ -115,6 +115,57 @@ fn vectorize_writes_svg_json_layers_and_previews() {
 }
 
 #[test]
+fn stages_prints_each_stage_with_its_steps_seconds_and_loss() {
+    let dir = scratch("stages");
+    let svg = dir.join("apple.svg");
+    let out = covec(&[
+        "vectorize",
+        APPLE,
+        "-o",
+        svg.to_str().unwrap(),
+        "--max-size",
+        "48",
+        "--paths",
+        "12",
+        "--mode",
+        "photo",
+        "--stages",
+    ]);
+    let text = stderr(&out);
+    assert!(out.status.success(), "{text}");
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .map(|l| l.split_whitespace().collect())
+        .collect();
+    assert_eq!(rows[0], ["stage", "steps", "seconds", "loss"], "{text}");
+    let names: Vec<&str> = rows[1..].iter().map(|r| r[0]).collect();
+    assert_eq!(
+        names,
+        [
+            "decompose",
+            "init",
+            "structure",
+            "reconstruct",
+            "refine",
+            "split",
+            "polish",
+            "run"
+        ],
+        "{text}"
+    );
+    let seconds = |row: &[&str]| row[2].parse::<f64>().unwrap();
+    let stages_total: f64 = rows[1..8].iter().map(|r| seconds(r)).sum();
+    assert!(
+        (stages_total - rows[8][1].parse::<f64>().unwrap()).abs() < 0.01,
+        "{text}"
+    );
+    for row in &rows[3..8] {
+        assert!(row[1].parse::<u32>().unwrap() > 0, "{text}");
+        assert!(row[3].parse::<f32>().unwrap() > 0.0, "{text}");
+    }
+}
+
+#[test]
 fn help_explains_every_option() {
     let out = covec(&["vectorize", "--help"]);
     let help = String::from_utf8_lossy(&out.stdout);
@@ -134,6 +185,7 @@ fn help_explains_every_option() {
         "--max-masks",
         "--precision",
         "--width",
+        "--stages",
     ] {
         assert!(help.contains(option), "{option} missing from --help");
     }
