@@ -144,7 +144,8 @@ pub fn run(input: &Path, args: &Args) -> Result<(), Error> {
     }
     let result = vectorize_file(input, args, &observer);
     observer.finish();
-    if let Some(stages) = &observer.stages {
+    // After a run only: a failure stays one line.
+    if let (Ok(_), Some(stages)) = (&result, &observer.stages) {
         eprint!("{}", stages.lock().expect("not poisoned").table());
     }
     if let Some(error) = observer.write_error.into_inner().expect("not poisoned") {

@@ -163,6 +163,18 @@ fn stages_prints_each_stage_with_its_steps_seconds_and_loss() {
         assert!(row[1].parse::<u32>().unwrap() > 0, "{text}");
         assert!(row[3].parse::<f32>().unwrap() > 0.0, "{text}");
     }
+
+    // A run that fails prints no table: its error stays one line.
+    let garbage = dir.join("garbage.png");
+    std::fs::write(&garbage, b"not an image").unwrap();
+    let out = covec(&[
+        "vectorize",
+        garbage.to_str().unwrap(),
+        "-o",
+        svg.to_str().unwrap(),
+        "--stages",
+    ]);
+    assert_one_line_error(&out, "could not be decoded");
 }
 
 #[test]
